@@ -35,7 +35,7 @@ def _say(hours: float, what: str, r: dict) -> None:
           + ("" if not r["exit"] else f"  EXIT {r['exit']}: {r.get('stderr', '')[-300:]}"), file=sys.stderr, flush=True)
 
 
-def pair(workdir: Path, hours: float, window_s: float, whole: bool) -> dict:
+def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: bool = True) -> dict:
     d = workdir / f"gnss10-{hours:g}h"
     if not (d / "config.toml").exists():
         r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "10", "--slips", "30",
@@ -52,7 +52,7 @@ def pair(workdir: Path, hours: float, window_s: float, whole: bool) -> dict:
         r = _timed(args, cwd=d)
         rec["stages"][name] = r
         _say(hours, name, r)
-    for k in range(int(round(3600 * hours / window_s))):
+    for k in range(int(round(3600 * hours / window_s)) if windows else 0):
         w = {"start_s": k * window_s}
         for name, args in (("init", ["init", "run.mcap", "--start", str(k * window_s), "--duration", str(window_s),
                                      "-o", f"init-{k}.json"]),
@@ -84,10 +84,12 @@ def main() -> None:
     ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 3.0])
     ap.add_argument("--window-s", type=float, default=3600.0)
     ap.add_argument("--no-whole", action="store_true", help="leave out the whole record's init and estimate")
+    ap.add_argument("--no-windows", action="store_true", help="leave out the windows' init and estimate (ingest and "
+                    "info only: docs/benchmarks/gnss_ingest.json)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-gnss-windows"))
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    records = [pair(a.workdir, h, a.window_s, not a.no_whole) for h in a.hours]
+    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows) for h in a.hours]
     result = {"pair": "simulate-gnss --rate-hz 10 --slips 30 --seed 1 (static, GPS L1)",
               "machine": machine(), "python": platform.python_version(),
               "records": records, "table": table(records),

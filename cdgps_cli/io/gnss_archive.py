@@ -25,7 +25,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["OBS_BLOCK_S", "block_bounds", "pack_blocks", "pack_table", "has_table", "read_table", "table_span"]
+__all__ = ["OBS_BLOCK_S", "block_bounds", "TableBlocks", "pack_blocks", "pack_table", "has_table", "read_table", "table_span"]
 
 OBS_BLOCK_S = 3600.0
 """Span of one archive block, GPS s (an hour: 36,000 epochs of a 10 Hz receiver; blocks start at multiples of it)."""
@@ -49,30 +49,58 @@ def pack_table(tab: pd.DataFrame, text_cols: tuple, dtypes: dict) -> bytes:
         return zstandard.ZstdCompressor(level=3).compress(archive)
 
 
-def block_bounds(time_s: np.ndarray, block_s: float = OBS_BLOCK_S) -> list:
+def block_bounds(time_s: np.ndarray, block_s: float | None = None) -> list:
     """Row ranges (start, stop) of ``time_s`` (GPS s, in row order) that fall in one block of ``block_s`` seconds
-    each (a new range wherever the block number changes); one empty range for an empty table."""
+    each (default :data:`OBS_BLOCK_S`; a new range wherever the block number changes); one empty range for an
+    empty table."""
     if time_s.size == 0:
         return [(0, 0)]
-    k = np.floor(time_s / block_s)
+    k = np.floor(time_s / (OBS_BLOCK_S if block_s is None else block_s))
     cuts = np.flatnonzero(k[1:] != k[:-1]) + 1
     edges = np.r_[0, cuts, time_s.size].tolist()
     return list(zip(edges[:-1], edges[1:]))
 
 
-def pack_blocks(tab: pd.DataFrame, prefix: str, text_cols: tuple, dtypes: dict, submit) -> tuple:
-    """The archives of ``tab`` in blocks of :data:`OBS_BLOCK_S`: ``submit(fn, *args)`` packs each (e.g. a thread
-    pool's, returning a future; or a plain call).  Returns (the index's attachment name, its JSON bytes, [(block
-    attachment name, future or bytes)])."""
-    t = tab["time_gps_s"].to_numpy()
-    blocks, packed = [], []
-    for k, (a, b) in enumerate(block_bounds(t)):
-        name = f"{prefix}/{k}_{_hour_label(float(t[a])) if b > a else 'empty'}.npz.zst"
-        blocks.append({"name": name, "rows": b - a, "first_gps_s": float(t[a:b].min()) if b > a else None,
-                       "last_gps_s": float(t[a:b].max()) if b > a else None})
-        packed.append((name, submit(pack_table, tab.iloc[a:b], text_cols, dtypes)))
-    index = json.dumps({"block_s": OBS_BLOCK_S, "blocks": blocks}).encode()
-    return f"{prefix}/blocks.json", index, packed
+class TableBlocks:
+    """The archives of one table written block by block, as its rows come (:func:`pack_blocks` of a whole table;
+    an ingest reading a long file hour by hour, :mod:`cdgps_cli.io.rinex_hours`): the same attachments either way.
+
+    ``add(tab, submit)`` takes the rows of one block (none: nothing is written) and returns [(attachment name,
+    ``submit(pack_table, …)``)]: ``submit(fn, *args)`` packs it (a thread pool's, returning a future; or a plain
+    call).  ``finish(submit)`` returns the attachments left: an empty table's one empty block, then the index
+    ``<prefix>/blocks.json`` as (name, JSON bytes)."""
+
+    def __init__(self, prefix: str, text_cols: tuple, dtypes: dict):
+        self.prefix, self.text_cols, self.dtypes = prefix, text_cols, dtypes
+        self.blocks: list = []
+        self._empty = None
+
+    def add(self, tab: pd.DataFrame, submit) -> list:
+        if not len(tab):
+            self._empty = tab.iloc[:0]
+            return []
+        t = tab["time_gps_s"].to_numpy()
+        name = f"{self.prefix}/{len(self.blocks)}_{_hour_label(float(t[0]))}.npz.zst"
+        self.blocks.append({"name": name, "rows": int(t.size), "first_gps_s": float(t.min()),
+                            "last_gps_s": float(t.max())})
+        return [(name, submit(pack_table, tab, self.text_cols, self.dtypes))]
+
+    def finish(self, submit) -> list:
+        out = []
+        if not self.blocks:
+            name = f"{self.prefix}/0_empty.npz.zst"
+            self.blocks.append({"name": name, "rows": 0, "first_gps_s": None, "last_gps_s": None})
+            out.append((name, submit(pack_table, self._empty, self.text_cols, self.dtypes)))
+        index = json.dumps({"block_s": OBS_BLOCK_S, "blocks": self.blocks}).encode()
+        return out + [(f"{self.prefix}/blocks.json", index)]
+
+
+def pack_blocks(tab: pd.DataFrame, prefix: str, text_cols: tuple, dtypes: dict, submit) -> list:
+    """The attachments of ``tab`` in blocks of :data:`OBS_BLOCK_S` (:class:`TableBlocks`): [(name, bytes or
+    ``submit``'s future)], the blocks, then the index."""
+    tb = TableBlocks(prefix, text_cols, dtypes)
+    out = [a for lo, hi in block_bounds(tab["time_gps_s"].to_numpy()) for a in tb.add(tab.iloc[lo:hi], submit)]
+    return out + tb.finish(submit)
 
 
 def _hour_label(t_gps_s: float) -> str:

@@ -261,13 +261,8 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
     p = Path(path)
     if kind == "rinex":
         hdr, obs = read_rinex_obs(p, gps_l1_optional=gps_l1_optional)
-        if hdr.get("file_type") not in (None, "O"):
-            raise CdgpsError(f"{p}: not an observation file")
         raw = _raw_from_rinex(obs)
-        header = _json_safe(hdr)
-        info = {k: header.get(k) for k in ("version", "marker_name", "receiver_type", "antenna_type", "interval_s",
-                                           "n_epochs", "n_epochs_power_failure", "gps_satellites",
-                                           "satellites_by_system", "l1_obs_types")}
+        header, info = rinex_header_info(p, hdr)
     elif kind == "ubx":
         from cdgps_cli.io.ubx import read_ubx_log  # noqa: PLC0415
 
@@ -282,12 +277,31 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
         header = _json_safe(header)
     else:  # pragma: no cover - the CLI only passes these two
         raise ValueError(kind)
-    if not gps_l1_optional and (len(raw) == 0 or not np.isfinite(raw["phase_cycles"].to_numpy()).any()):
-        what = "a valid carrier phase (cpValid) in any RXM-RAWX epoch" if kind == "ubx" else \
-            f"a value in its L1 phase column ({(header.get('l1_obs_types') or {}).get('phase', 'L1')})"
-        raise CdgpsError(f"{p}: no GPS L1 carrier-phase observations: no satellite has {what}; carrier-phase "
-                         f"differential GPS needs L1 phase at every receiver")
+    if not gps_l1_optional:
+        refuse_no_l1_phase(p, kind, header, raw)
     return GnssReceiver(name, kind, p.name, header, raw, info, sf_nav if kind == "ubx" else None)
+
+
+def rinex_header_info(p: Path, hdr: dict) -> tuple[dict, dict]:
+    """(the receiver's header, its read summary ``info``) of a RINEX observation file's header as read
+    (:func:`~cdgps_cli.io.rinex.read_rinex_obs`); CdgpsError for a file of another type."""
+    if hdr.get("file_type") not in (None, "O"):
+        raise CdgpsError(f"{p}: not an observation file")
+    header = _json_safe(hdr)
+    info = {k: header.get(k) for k in ("version", "marker_name", "receiver_type", "antenna_type", "interval_s",
+                                       "n_epochs", "n_epochs_power_failure", "gps_satellites",
+                                       "satellites_by_system", "l1_obs_types")}
+    return header, info
+
+
+def refuse_no_l1_phase(p: Path, kind: str, header: dict, raw: pd.DataFrame) -> None:
+    """CdgpsError naming the file when its raw table holds no GPS L1 carrier phase."""
+    if len(raw) and np.isfinite(raw["phase_cycles"].to_numpy()).any():
+        return
+    what = "a valid carrier phase (cpValid) in any RXM-RAWX epoch" if kind == "ubx" else \
+        f"a value in its L1 phase column ({(header.get('l1_obs_types') or {}).get('phase', 'L1')})"
+    raise CdgpsError(f"{p}: no GPS L1 carrier-phase observations: no satellite has {what}; carrier-phase "
+                     f"differential GPS needs L1 phase at every receiver")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -306,19 +320,72 @@ comes from the lock times at processing."""
 _SIGNAL_COLUMNS = ["time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m"]
 
 
+def _signal_dtypes(signals: pd.DataFrame) -> dict:
+    """The stored dtypes of a signal table's numeric columns (a UBX log's lock times and half-cycle status too)."""
+    ubx = all(c in signals for c in _SIGNAL_UBX_DTYPES)
+    return {**_SIGNAL_DTYPES, **(_SIGNAL_UBX_DTYPES if ubx else {})}
+
+
+class _ReceiverArchives:
+    """Receiver ``i``'s observation archives (:class:`~cdgps_cli.io.gnss_archive.TableBlocks`): its raw table and, when
+    it has one, its signal table, written as their rows come."""
+
+    def __init__(self, i: int):
+        self.i = i
+        self.obs = gnss_archive.TableBlocks(OBS_PREFIX.format(i), ("sat",), _DTYPES)
+        self.sig = None
+
+    def add(self, raw: pd.DataFrame, signals: pd.DataFrame | None, submit) -> list:
+        out = _add_blocks(self.obs, raw, submit)
+        if signals is not None:
+            if self.sig is None:
+                self.sig = gnss_archive.TableBlocks(SIGNALS_PREFIX.format(self.i), ("sat", "signal"),
+                                                    _signal_dtypes(signals))
+            out += _add_blocks(self.sig, signals, submit)
+        return out
+
+    def finish(self, submit) -> list:
+        return self.obs.finish(submit) + (self.sig.finish(submit) if self.sig is not None else [])
+
+
+def _add_blocks(tb, tab: pd.DataFrame, submit) -> list:
+    """``tab``'s rows added to ``tb`` block by block (:func:`~cdgps_cli.io.gnss_archive.block_bounds`)."""
+    return [a for lo, hi in gnss_archive.block_bounds(tab["time_gps_s"].to_numpy()) for a in tb.add(tab.iloc[lo:hi], submit)]
+
+
 def _pack_receiver(rx: GnssReceiver, i: int, submit) -> list:
-    """The attachments of receiver ``i``'s tables, in blocks (:func:`cdgps_cli.io.gnss_archive.pack_blocks`; each
-    block packed by ``submit``): [(name, bytes or a future of them)], each table's block index first."""
-    out = []
-    tabs = [(OBS_PREFIX.format(i), rx.raw, ("sat",), _DTYPES)]
-    if rx.signals is not None:
-        ubx = all(c in rx.signals for c in _SIGNAL_UBX_DTYPES)
-        tabs.append((SIGNALS_PREFIX.format(i), rx.signals, ("sat", "signal"),
-                     {**_SIGNAL_DTYPES, **(_SIGNAL_UBX_DTYPES if ubx else {})}))
-    for prefix, tab, text, dtypes in tabs:
-        index_name, index, blocks = gnss_archive.pack_blocks(tab, prefix, text, dtypes, submit)
-        out += [(index_name, index), *blocks]
-    return out
+    """The attachments of receiver ``i``'s tables, in blocks (:class:`_ReceiverArchives`): [(name, bytes or a future
+    of them)]."""
+    arch = _ReceiverArchives(i)
+    return arch.add(rx.raw, rx.signals, submit) + arch.finish(submit)
+
+
+def _time_sorted(tab: pd.DataFrame | None) -> bool:
+    t = tab["time_gps_s"].to_numpy() if tab is not None else np.zeros(0)
+    return bool((t[1:] >= t[:-1]).all())
+
+
+def record_blocks(receivers: dict):
+    """The receivers' tables in blocks of GPS time (:data:`~cdgps_cli.io.gnss_archive.OBS_BLOCK_S`), as a long
+    file's hours are read (:mod:`cdgps_cli.io.rinex_hours`): for each block, in time order, [(its raw rows, its
+    signal rows or None)] per receiver.  A table not in time order: one block of everything (its archives are still
+    cut by hour, and its messages put in time order, by the writer)."""
+    tabs = [(rx.raw, rx.signals) for rx in receivers.values()]
+    if not all(_time_sorted(r) and _time_sorted(g) for r, g in tabs):
+        yield tabs
+        return
+    bounds = [[_numbered(t) if t is not None else None for t in pair] for pair in tabs]
+    keys = sorted({k for pair in bounds for b in pair if b is not None for k in b})
+    for k in keys or [None]:
+        yield [tuple(None if t is None else t.iloc[slice(*b.get(k, (0, 0)))] for t, b in zip(pair, pb))
+               for pair, pb in zip(tabs, bounds)]
+
+
+def _numbered(tab: pd.DataFrame) -> dict:
+    """Block number → (first row, end row) of a table in time order."""
+    t = tab["time_gps_s"].to_numpy()
+    return {math.floor(float(t[lo]) / gnss_archive.OBS_BLOCK_S): (lo, hi)
+            for lo, hi in gnss_archive.block_bounds(t) if hi > lo}
 
 
 def _raw_table(c, i: int, what: str, columns=None, window=None) -> pd.DataFrame:
@@ -427,12 +494,17 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
                 for q in paths]
         tab = tabs[0] if len(tabs) == 1 else join_signal_tables(n, tabs, paths)
         tab = first_of_repeated_epochs(tab)[0]        # an epoch written twice: the first (the L1 reader's warning says)
-        have = set(tab["signal"])
-        absent = [g for g in signals if g not in have]
-        if absent:
-            raise CdgpsError(f"{p} ({n}): no {', '.join(absent)} phase observations; the receivers must share every "
-                             f"signal of [gnss] signals (this file has: {', '.join(sorted(have)) or 'none'})")
+        refuse_absent_signals(signals, tab, p, n)
         rx.signals = tab
+
+
+def refuse_absent_signals(signals, tab: pd.DataFrame, p, n: str) -> None:
+    """CdgpsError naming the file when its signal table lacks one of ``signals`` (every receiver must have each)."""
+    have = set(tab["signal"])
+    absent = [g for g in signals if g not in have]
+    if absent:
+        raise CdgpsError(f"{p} ({n}): no {', '.join(absent)} phase observations; the receivers must share every "
+                         f"signal of [gnss] signals (this file has: {', '.join(sorted(have)) or 'none'})")
 
 
 def _merge_nav_tables(navs) -> pd.DataFrame:
@@ -707,45 +779,36 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
     (:func:`cdgps_cli.pipeline.gnss_ingest.lock_summary`, the one lock-segment rule);
     ``extra_attachments`` {name: bytes} (e.g. the sensor logs, :mod:`cdgps_cli.io.sensor_logs`) and
     ``extra_inputs`` {metadata key: path} of the files they came from (hashed like the others).
+    The observations are written block by block (:func:`record_blocks`), as :func:`write_gnss_run_blocks` writes
+    those of a long file read hour by hour: the same bytes.
     """
-    files, master, nav_list, receivers, nav = inp.files, inp.master, inp.nav_list, inp.receivers, inp.nav
-    integrity, warnings, nav_source = inp.integrity, inp.warnings, inp.nav_source
+    return write_gnss_run_blocks(cfg, out_path, inp, list(inp.receivers), record_blocks(inp.receivers),
+                                 lambda: (pos_src, common, lock, extra_attachments), extra_inputs)
+
+
+def write_gnss_run_blocks(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, names: list, blocks, finish,
+                          extra_inputs: dict | None = None) -> dict:
+    """:func:`write_gnss_run` of observations that come block by block.
+
+    ``names``: the receivers, master first; ``blocks``: iterable, for each block of GPS time in time order, of
+    [(raw rows, signal rows or None)] per receiver of ``names`` (:func:`record_blocks`; an ingest reading long files hour by hour fills
+    ``inp.receivers`` as it goes).  ``finish()``, called once every block is written, returns (``pos_src``,
+    ``common``, ``lock``, ``extra_attachments``) as :func:`write_gnss_run` takes them (its checks may raise: the
+    output is then not written).
+    """
+    files, master, nav_list, nav = inp.files, inp.master, inp.nav_list, inp.nav
     out_path = Path(out_path)
     pieces = inp.pieces or {n: [p] for n, (_, p) in files.items()}
     inputs = {**{k: p for n, (kind, _) in files.items() for k, p in input_keys(f"{kind}:{n}", pieces[n])},
               **{f"nav[{i}]": p for i, p in enumerate(nav_list)}, **(extra_inputs or {})}
-    meta = ingest_metadata("gnss", cfg, inputs, master=master, receivers=",".join(receivers),
-                           displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
-    for n, (kind, p) in files.items():
-        if n in integrity:
-            meta[f"{kind}:{n}_integrity"] = integrity_record(receivers[n].info)
-    if nav is not None and not nav_list:
-        meta["ephemeris_source"] = nav_source
-    rx_json = []
-    for n, rx in receivers.items():
-        rx_json.append({"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,
-                        "position_source": pos_src[n][0], "position_ecef_m": pos_src[n][1]})
     with McapOut(out_path, time_scale="gps") as out:
-        n_eph = 0
-        if nav is not None:
-            ch_e = out.channel(GNSS_EPHEMERIS_TOPIC, EPHEMERIS_SCHEMA, {"source": nav_source})
-            for rec in nav.to_dict(orient="records"):
-                out.write(ch_e, float(rec["toc_gps_s"]), {k: _json_safe(v) for k, v in rec.items()})
-                n_eph += 1
-            cols = NAV_COLUMNS + (GLONASS_NAV_COLUMNS if "x_m" in nav.columns else ())   # GLONASS state vectors
-            tab = {c: _json_safe(nav[c].tolist()) for c in cols}
-            out.attach(EPHEMERIS_ATTACHMENT, json.dumps(tab).encode(), "application/json")
+        n_eph = _write_ephemerides(out, nav, inp.nav_source)
         ch = out.channel(GNSS_OBS_TOPIC, OBS_SCHEMA, {"units": "cycles, m, dB-Hz, Hz, ms"})
-        # the observation archives are packed in a worker thread while the messages are built (numpy's copies
-        # and zstd release the GIL: a day's pair 8.8 -> 8.0 s), and attached after them, in order, as before
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
-            packed = [a for i, rx in enumerate(receivers.values()) for a in _pack_receiver(rx, i, pool.submit)]
-            n_msg = _write_obs_messages(out, ch, receivers)
-            for name, data in packed:
-                if isinstance(data, bytes):
-                    out.attach(name, data, "application/json")
-                else:
-                    out.attach(name, data.result(), "application/x-npz+zstd")
+        n_msg = _write_observations(out, ch, names, blocks)
+        pos_src, common, lock, extra_attachments = finish()
+        receivers = inp.receivers
+        rx_json = [{"name": n, "format": rx.format, "file": rx.file, "header": rx.header, "info": rx.info,
+                    "position_source": pos_src[n][0], "position_ecef_m": pos_src[n][1]} for n, rx in receivers.items()]
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
         out.attach(GNSS_INFO_ATTACHMENT, gnss_info_json(gnss_info(
             cfg, master, receivers, nav, {n: c["pairing"] for n, c in common.items()} if common is not None else None,
@@ -753,18 +816,71 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         for name, data in (extra_attachments or {}).items():
             out.attach(name, data, "text/csv" if name.endswith(".csv") else "application/octet-stream")
-        out.metadata(INGEST_METADATA, meta)
+        out.metadata(INGEST_METADATA, _ingest_meta(cfg, inp, inputs))
     summary = {
         "output": str(out_path), "kind": "gnss", "config": cfg.name, "config_sha256": cfg.sha256, "master": master,
         "displacement_model": cfg.displacement,
         "receivers": [_receiver_summary(n, rx, lock[n], pos_src[n]) for n, rx in receivers.items()],
         "common_epochs": common,
         "ephemerides": n_eph, "ephemeris_satellites": int(nav["sat"].nunique()) if nav is not None else 0,
-        "messages": n_msg, "warnings": warnings, "integrity": integrity,
+        "messages": n_msg, "warnings": inp.warnings, "integrity": inp.integrity,
     }
     if inp.joins:
         summary["joins"] = inp.joins
     return summary
+
+
+def _ingest_meta(cfg: GnssConfig, inp: IngestInputs, inputs: dict) -> dict:
+    """The RUN's ingest metadata record: inputs hashed, master, receivers, model, signals, UBX integrity, and where
+    the ephemerides came from when not from navigation files."""
+    meta = ingest_metadata("gnss", cfg, inputs, master=inp.master, receivers=",".join(inp.receivers),
+                           displacement_model=cfg.displacement, **({"signals": ",".join(cfg.signals)} if cfg.signals else {}))
+    for n, (kind, p) in inp.files.items():
+        if n in inp.integrity:
+            meta[f"{kind}:{n}_integrity"] = integrity_record(inp.receivers[n].info)
+    if inp.nav is not None and not inp.nav_list:
+        meta["ephemeris_source"] = inp.nav_source
+    return meta
+
+
+def _write_ephemerides(out: McapOut, nav: pd.DataFrame | None, nav_source: str) -> int:
+    """The ephemeris messages and their table's attachment; how many."""
+    if nav is None:
+        return 0
+    ch_e = out.channel(GNSS_EPHEMERIS_TOPIC, EPHEMERIS_SCHEMA, {"source": nav_source})
+    n_eph = 0
+    for rec in nav.to_dict(orient="records"):
+        out.write(ch_e, float(rec["toc_gps_s"]), {k: _json_safe(v) for k, v in rec.items()})
+        n_eph += 1
+    cols = NAV_COLUMNS + (GLONASS_NAV_COLUMNS if "x_m" in nav.columns else ())   # GLONASS state vectors
+    tab = {c: _json_safe(nav[c].tolist()) for c in cols}
+    out.attach(EPHEMERIS_ATTACHMENT, json.dumps(tab).encode(), "application/json")
+    return n_eph
+
+
+def _write_observations(out: McapOut, ch: int, names: list, blocks) -> int:
+    """Each block's observation messages (:func:`_write_obs_tables`), then its archives; the archives' indexes
+    after the last block.  The archives are packed in a worker thread while the messages are built (numpy's copies
+    and zstd release the GIL).  Returns the number of messages."""
+    archives = [_ReceiverArchives(i) for i in range(len(names))]
+    n_msg = 0
+    bar = progress.bar(None, f"writing {out.path.name}", "msg")
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
+        for block in blocks:
+            packed = [a for arch, (raw, sig) in zip(archives, block) for a in arch.add(raw, sig, pool.submit)]
+            n_msg += _write_obs_tables(out, ch, {n: raw for n, (raw, _) in zip(names, block)}, bar)
+            _attach_packed(out, packed)
+        _attach_packed(out, [a for arch in archives for a in arch.finish(pool.submit)])
+    bar.close()
+    return n_msg
+
+
+def _attach_packed(out: McapOut, packed: list) -> None:
+    for name, data in packed:
+        if isinstance(data, bytes):
+            out.attach(name, data, "application/json")
+        else:
+            out.attach(name, data.result(), "application/x-npz+zstd")
 
 
 def ubx_loss_warning(name: str, record: dict) -> str | None:
@@ -847,15 +963,23 @@ _INT_OBS = ("lli", "half_cycle", "lock_time_ms")
 
 
 def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
-    """One message per receiver and epoch, in time order across receivers.
+    """:func:`_write_obs_tables` of the receivers' raw tables (each ``receivers`` value has ``.raw``)."""
+    bar = progress.bar(None, f"writing {out.path.name}", "msg")
+    n = _write_obs_tables(out, ch, {name: rx.raw for name, rx in receivers.items()}, bar)
+    bar.close()
+    return n
+
+
+def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar) -> int:
+    """One message per receiver and epoch of the raw tables (``raws``: receiver name → its rows), in time order
+    across receivers; ``bar`` counts them.
 
     The bytes of :meth:`McapOut.write` of each epoch's payload (:func:`_obs_payload`), made from the
     texts of a block of rows' values (one orjson call per column and block, no dict per message;
     issue 29: 10 s of a day's ingest went to the dicts); a message whose text would hold ``null``
     (a value the schema has no place for, e.g. an infinity) goes through :meth:`McapOut.write`."""
     per = []
-    for n, rx in receivers.items():
-        r = rx.raw
+    for n, r in raws.items():
         t = r["time_gps_s"].to_numpy()
         cuts = np.flatnonzero(np.r_[True, t[1:] != t[:-1], True]) if t.size else np.zeros(1, dtype=np.int64)
         cols = {c: r[c].to_numpy() for c in (*_NULLABLE_OBS, *_INT_OBS)}
@@ -866,7 +990,6 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
     order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
     heads = [b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s,"receiver":' + orjson.dumps(p[0]).replace(b"%", b"%%")
              + b',"epoch_flag":%d' for p in per]
-    bar = progress.bar(len(order), f"writing {out.path.name}", "msg")
     for start in range(0, len(order), _OBS_MESSAGES_PER_BLOCK):
         part = order[start:start + _OBS_MESSAGES_PER_BLOCK]
         bodies = {}
@@ -895,7 +1018,6 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
             names.append(n)
         out.write_encoded(ch, times, stamps, datas, names)
         bar.update(len(part))
-    bar.close()
     return len(order)
 
 

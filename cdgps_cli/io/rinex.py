@@ -525,7 +525,7 @@ FAST_PARSE = True
 
 
 def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
-                   block_epochs: int = RINEX_BLOCK_EPOCHS) -> tuple[dict, pd.DataFrame]:
+                   block_epochs: int = RINEX_BLOCK_EPOCHS, read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
     """Read a RINEX 2.10/2.11 or 3.0x observation file (plain, compressed or Hatanaka).
 
     Parameters
@@ -578,6 +578,9 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
     block_epochs : int, default :data:`~cdgps_cli.config.options.RINEX_BLOCK_EPOCHS`
         Epochs whose records are converted at a time (memory of a block, not of the file, beyond
         the file's bytes); the result does not depend on it.
+    read : (bytes, bool), optional
+        The file's (decompressed) bytes and whether it was compressed, when already at hand (an hour of a long
+        file with its header: :mod:`cdgps_cli.io.rinex_hours`); ``path`` then only names it.
 
     Raises
     ------
@@ -591,12 +594,15 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
     if block_epochs < 1:
         raise ValueError(f"block_epochs must be >= 1, got {block_epochs}")
     if FAST_PARSE:
-        data, compressed = _read_bytes(p)
+        data, compressed = _read_bytes(p) if read is None else read
         try:
             return in_gps_time(*_read_obs_fast(p, data, compressed, gps_l1_optional, block_epochs))
         except Unsupported:
             pass                      # the line-by-line reader: the same table, or the error naming the line
-    lines, compressed = _read_lines(p)
+    if read is not None:
+        lines, compressed = _split_lines(read[0]), read[1]
+    else:
+        lines, compressed = _read_lines(p)
     return in_gps_time(*_read_obs_lines(p, lines, compressed, gps_l1_optional))
 
 

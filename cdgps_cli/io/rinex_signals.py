@@ -162,7 +162,8 @@ def signals_in_file(path: str | Path) -> list[str]:
     return out
 
 
-def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None) -> tuple[dict, pd.DataFrame]:
+def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
+                       read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
     """Read the phases and ranges of ``signals`` (e.g. ``["G:L1", "G:L2", "E:E1", "E:E5a"]``).
 
     Parameters
@@ -175,6 +176,9 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
     glonass_k : dict, optional
         GLONASS frequency numbers from elsewhere ({"R01": 1}, e.g. the navigation records'
         ``glonass_k``), used for satellites the header's ``GLONASS SLOT / FRQ #`` lines do not list.
+    read : (bytes, bool), optional
+        The file's (decompressed) bytes and whether it was compressed, when already at hand (an hour of a long
+        file with its header: :mod:`cdgps_cli.io.rinex_hours`); ``path`` then only names it.
 
     Returns
     -------
@@ -193,9 +197,8 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None)
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = _as_path(path)
-    read = None
     if FAST_PARSE:
-        read = _read_bytes(p)
+        read = _read_bytes(p) if read is None else read
         try:
             return in_gps_time(*_read_bytes_v3(p, list(signals), glonass_k, read))
         except Unsupported:

@@ -21,7 +21,7 @@ import pandas as pd
 
 from cdgps_cli.config.structure import GnssConfig
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io import gnss_run
+from cdgps_cli.io import gnss_hours, gnss_run
 from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.io.gnss_run import GnssReceiver, IngestInputs, span_text
@@ -76,6 +76,16 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         position while there are rovers, an output that would overwrite an input.
     """
     say = progress or (lambda m: None)
+    hourly = gnss_hours.hourly_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
+                                      progress=progress)
+    if hourly is not None:
+        inp, blocks, mapped = hourly
+        try:
+            return _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say)
+        except (CdgpsError, gnss_hours.NotCut) as exc:
+            say(f"reading the files whole ({exc}) …")
+        finally:
+            mapped.close()
     inp = gnss_run.read_ingest_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
                                       progress=progress, strict=strict)
     if inp.nav is not None:
@@ -83,20 +93,58 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     pos_src = gnss_run.nominal_positions(cfg, inp)
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
-    lock = {n: lock_summary(rx, anchor_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
-    sensors = config_sensor_paths(cfg) if sensor_paths is None else [str(p) for p in sensor_paths]
+    lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
+    att, extra_inputs, done = _sensor_parts(cfg, inp, sensor_paths)
+    return done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
+                                        extra_inputs=extra_inputs))
+
+
+def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, say) -> dict:
+    """:func:`ingest_gnss` of receivers read block by block (:func:`cdgps_cli.io.gnss_hours.hourly_inputs`): the
+    observations written as they are read, the checks made on the thin tables once the last block is in."""
+    from cdgps_cli.pipeline.fusion import map_large_blocks  # noqa: PLC0415
+
+    map_large_blocks(1 << 20)              # each block's arrays unmapped when freed: the blocks' memory does not pile up
+    extra_inputs = {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(_sensors(cfg, sensor_paths))}
+    parts = {}
+
+    def finish():
+        if inp.nav is not None:
+            _check_coverage(inp, cfg.signals)
+        pos_src = gnss_run.nominal_positions(cfg, inp)
+        common = _common_epochs(cfg, inp)
+        lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
+        att, _, parts["done"] = _sensor_parts(cfg, inp, sensor_paths)
+        return pos_src, common, lock, att
+
+    say(f"writing {out_path} …")
+    names = [inp.master, *[n for n in inp.files if n != inp.master]]
+    s = gnss_run.write_gnss_run_blocks(cfg, out_path, inp, names, blocks, finish, extra_inputs)
+    return parts["done"](s)
+
+
+def _sensors(cfg: GnssConfig, sensor_paths) -> list:
+    return config_sensor_paths(cfg) if sensor_paths is None else [str(p) for p in sensor_paths]
+
+
+def _sensor_parts(cfg: GnssConfig, inp, sensor_paths) -> tuple:
+    """(the sensor logs' attachments or None, their metadata inputs, a function completing the summary with them)
+    of an ingest: the ``[gnss] sensors`` logs (or ``sensor_paths``) and the UBX logs' ESF measurements."""
+    sensors = _sensors(cfg, sensor_paths)
     ref_s = min(float(rx.raw["time_gps_s"].min()) for rx in inp.receivers.values())
     imu, imu_info = receiver_imu_tables({n: (inp.pieces or {}).get(n, [p]) for n, (k, p) in inp.files.items()
                                          if k == "ubx"}, ref_s)
     att = sensor_attachments(sensors, ref_s, imu) if sensors or imu else None
-    s = gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
-                                extra_inputs={f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(sensors)})
-    if sensors or imu:
-        s["sensor_logs"] = {"files": sensors + [f for a in imu_info.values() for f in a["files"]],
-                            "kinds": sorted(k.split("/")[1][:-4] for k in att)}
-    if imu_info:
-        s["receiver_imu"] = imu_info
-    return s
+    extra_inputs = {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(sensors)}
+
+    def done(s: dict) -> dict:
+        if sensors or imu:
+            s["sensor_logs"] = {"files": sensors + [f for a in imu_info.values() for f in a["files"]],
+                                "kinds": sorted(k.split("/")[1][:-4] for k in att)}
+        if imu_info:
+            s["receiver_imu"] = imu_info
+        return s
+    return att, extra_inputs, done
 
 
 def config_sensor_paths(cfg: GnssConfig) -> list:
@@ -190,25 +238,58 @@ def signal_obs(rx: GnssReceiver, interval_s: float | None = None) -> pd.DataFram
     return s.assign(lli=lli)
 
 
+def lock_obs(rx: GnssReceiver, signals) -> pd.DataFrame:
+    """What :func:`lock_summary` counts of a receiver: the time, satellite, phase and loss-of-lock columns of
+    :func:`anchor_obs`, in narrow types.  A RINEX receiver's are its anchor rows as recorded (its raw table or the
+    anchor signal's rows: all a receiver read hour by hour keeps, :class:`cdgps_cli.io.gnss_hours.ThinTables`); a
+    UBX receiver's loss of lock comes from its lock times (:func:`anchor_obs`)."""
+    if rx.format == "ubx":
+        o = anchor_obs(rx, signals)
+        return o[["time_gps_s", "sat", "phase_l1_cycles", "lli_l1"]]
+    r = _anchor_rows(rx, signals)
+    return pd.DataFrame({"time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64), "sat": r["sat"].to_numpy(),
+                         "phase_l1_cycles": r["phase_cycles"].to_numpy(), "lli_l1": r["lli"].to_numpy()}, copy=False)
+
+
 def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
     """Lock counters of a receiver per satellite: phase rows, slips (LLI bit 0 after the first row:
     RINEX flags or u-blox lock-time restarts), half-cycle-flagged rows, and arcs — the lock segments
     of :func:`cdgps_cli.measurement.channels.lock_segments` (slip flags, gaps over 1.5 epoch
     intervals), the same rule as the double differences' ambiguities."""
     o = processing_obs(rx) if obs is None else obs
-    o = o[np.isfinite(o["phase_l1_cycles"].to_numpy())]
-    t = o["time_gps_s"].to_numpy()
-    lli = o["lli_l1"].to_numpy()
-    codes, sats = pd.factorize(o["sat"].to_numpy(dtype=object), sort=True)
+    ph = np.isfinite(o["phase_l1_cycles"].to_numpy())
+    t = o["time_gps_s"].to_numpy()[ph]
+    lli = o["lli_l1"].to_numpy()[ph]
+    codes, sats = pd.factorize(o["sat"][ph], sort=True)      # (a categorical column: its codes, no strings made)
     interval = nominal_interval_s(t)
-    seg = lock_segments(codes, t, slip=(lli & 1) != 0, max_step=1.5 * interval if math.isfinite(interval) else np.inf)
-    first = seg.cause == FIRST
-    rows = np.bincount(codes, minlength=len(sats))
-    slips = np.bincount(codes, weights=(((lli & 1) != 0) & ~first).astype(float), minlength=len(sats))
-    half = np.bincount(codes, weights=((lli & 2) != 0).astype(float), minlength=len(sats))
-    arcs = np.bincount(seg.channel, minlength=len(sats))
-    return {s: {"rows": int(rows[i]), "slips": int(slips[i]), "half_cycle_rows": int(half[i]), "arcs": int(arcs[i])}
+    max_step = 1.5 * interval if math.isfinite(interval) else np.inf
+    n = len(sats)
+    rows = np.bincount(codes, minlength=n)
+    slips, half, arcs = np.zeros(n), np.bincount(codes, weights=((lli & 2) != 0).astype(float), minlength=n), np.zeros(n)
+    for a, b in _channel_groups(rows):       # satellites in groups: a day's rows are not all cut at once
+        g = (codes >= a) & (codes < b) if (a, b) != (0, n) else slice(None)
+        c, lg = codes[g], lli[g]
+        seg = lock_segments(c, t[g], slip=(lg & 1) != 0, max_step=max_step)
+        slips += np.bincount(c, weights=(((lg & 1) != 0) & (seg.cause != FIRST)).astype(float), minlength=n)
+        arcs += np.bincount(seg.channel, minlength=n)
+    return {str(s): {"rows": int(rows[i]), "slips": int(slips[i]), "half_cycle_rows": int(half[i]), "arcs": int(arcs[i])}
             for i, s in enumerate(sats)}
+
+
+_LOCK_ROWS_PER_PASS = 2_000_000
+"""Rows :func:`lock_summary` cuts into lock segments at a time (whole satellites; ≈ 60 bytes a row)."""
+
+
+def _channel_groups(rows: np.ndarray) -> list:
+    """Consecutive channel ranges [a, b) holding about :data:`_LOCK_ROWS_PER_PASS` rows each (a channel is never
+    split: its lock segments are its own)."""
+    out, a, acc = [], 0, 0
+    for i, r in enumerate(rows.tolist()):
+        if acc and acc + r > _LOCK_ROWS_PER_PASS:
+            out.append((a, i))
+            a, acc = i, 0
+        acc += r
+    return out + [(a, rows.size)]
 
 
 def _anchor_rows(rx: GnssReceiver, signals) -> pd.DataFrame:
@@ -278,7 +359,8 @@ def _phase_satellites(rx: GnssReceiver) -> set:
     out = set()
     for t in (rx.raw, rx.signals):
         if t is not None and len(t):
-            out |= set(t["sat"].to_numpy()[np.isfinite(t["phase_cycles"].to_numpy(dtype=float))].astype(str).tolist())
+            sats = t["sat"].to_numpy()[np.isfinite(t["phase_cycles"].to_numpy(dtype=float))]
+            out |= {str(s) for s in pd.unique(sats)}        # (a day's rows: their few names, not a string each)
     return out
 
 

@@ -1,0 +1,206 @@
+"""A long RINEX 3 observation file read hour by hour, in bounded memory (issue 29).
+
+A day of a 10 Hz receiver is ≈ 0.4 GB of RINEX text per antenna; read whole, with its tables, an ingest of a pair
+held ≈ 3 GB.  This module cuts a plain (uncompressed) RINEX 3 file into the byte ranges of its epochs in each block
+of GPS time (:data:`cdgps_cli.io.gnss_archive.OBS_BLOCK_S`, the blocks of a RUN's observation archives), without
+reading the file into memory: the file is mapped, and the first epoch of each block is found by bisection on the
+epoch lines' time tags.  Each block is then read as a file of its own (the header's bytes, then the block's
+records) by the same readers that read whole files (:func:`cdgps_cli.io.rinex.read_rinex_obs`,
+:func:`cdgps_cli.io.rinex_signals.read_rinex_signals` with ``read=``), and the blocks' header summaries are joined
+(:func:`join_obs_headers`) into what the whole file's reading gives.
+
+Only what can be cut so is cut (:func:`rinex_hours` returns None otherwise, and the file is read whole): the blocks
+are checked as they are read (:func:`check_block`) — epochs in time order and each in its block, no special records
+(a header record inside the body changes what follows it), epochs in GPS time.
+"""
+
+from __future__ import annotations
+
+import math
+import mmap
+from dataclasses import dataclass
+from pathlib import Path
+
+from cdgps_cli.core.gps_time import gps_seconds
+
+__all__ = ["RinexHours", "rinex_hours", "join_obs_headers", "check_block", "NotCut"]
+
+_COMPRESSED_MAGIC = (b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04")
+
+
+class NotCut(Exception):
+    """A file (or one of its blocks) that cannot be read block by block exactly as whole (the reason): it is read
+    whole."""
+
+
+@dataclass
+class RinexHours:
+    """A plain RINEX 3 observation file mapped, cut into blocks of GPS time.
+
+    ``head``: the header's bytes (through END OF HEADER's line); ``blocks``: [(block number k, first byte, end
+    byte, its first epoch's GPS s)] of the body, in file order, each holding the epochs with
+    ``floor(t / block_s) == k``."""
+
+    path: Path
+    head: bytes
+    blocks: list
+    block_s: float
+    _map: mmap.mmap
+
+    def block_bytes(self, j: int) -> tuple[bytes, bool]:
+        """The ``read=`` argument of the readers for block ``j``: the header and that block's records."""
+        _, a, b, _ = self.blocks[j]
+        data = self.head + self._map[a:b]
+        a0 = a - a % mmap.PAGESIZE            # the file's pages read let go (not held as the process's memory)
+        self._map.madvise(mmap.MADV_DONTNEED, a0, b - a0)
+        return data, False
+
+    def close(self) -> None:
+        self._map.close()
+
+
+def _epoch_time_s(line: bytes) -> float | None:
+    """GPS s of a RINEX 3 epoch line (``> 2024 01 01 00 00  0.0000000  0 17``), None when it is not one."""
+    try:
+        return gps_seconds(int(line[2:6]), int(line[7:9]), int(line[10:12]), int(line[13:15]), int(line[16:18]),
+                           float(line[18:29]))
+    except (ValueError, IndexError):
+        return None
+
+
+def _epoch_at_or_after(m: mmap.mmap, at: int, lo: int, end: int) -> int:
+    """Byte offset of the first epoch line starting at or after ``at`` (``end`` if none); ``lo``: the body's start."""
+    if at <= lo:
+        return lo if m[lo:lo + 1] == b">" else _next_epoch(m, lo, end)
+    return _next_epoch(m, at - 1, end)
+
+
+def _next_epoch(m: mmap.mmap, at: int, end: int) -> int:
+    i = m.find(b"\n>", at, end)
+    return end if i < 0 else i + 1
+
+
+def _line(m: mmap.mmap, at: int, end: int) -> bytes:
+    nl = m.find(b"\n", at, end)
+    return m[at:(end if nl < 0 else nl)]
+
+
+def _first_epoch_from(m: mmap.mmap, t_s: float, lo: int, end: int) -> int:
+    """Byte offset of the first epoch line whose time is ≥ ``t_s`` (epochs in time order), by bisection on bytes."""
+    a, b = lo, end
+    while b - a > 1:
+        mid = (a + b) // 2
+        e = _epoch_at_or_after(m, mid, lo, end)
+        t = _epoch_time_s(_line(m, e, end)) if e < end else math.inf
+        if t is None:
+            raise NotCut(f"epoch line at byte {e}")
+        if t >= t_s:
+            b = mid
+        else:
+            a = mid
+    e = _epoch_at_or_after(m, a, lo, end)
+    while e < end:                              # (a ≤ the answer: walk the few epochs left)
+        t = _epoch_time_s(_line(m, e, end))
+        if t is None:
+            raise NotCut(f"epoch line at byte {e}")
+        if t >= t_s:
+            return e
+        e = _next_epoch(m, e, end)
+    return end
+
+
+def rinex_hours(path: str | Path, block_s: float) -> RinexHours | None:
+    """The file cut into blocks of ``block_s`` seconds of GPS time, or None when it is not a plain RINEX 3
+    observation file with its epochs in GPS time (it is then read whole).  Opening errors are the readers' own
+    (None: the whole reading names them)."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            if fh.read(4).startswith(_COMPRESSED_MAGIC) or p.stat().st_size < 200:
+                return None
+            m = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        m.madvise(mmap.MADV_RANDOM)          # (the bisection's probes: no read-ahead mapped around each)
+    except (OSError, ValueError):
+        return None
+    try:
+        hours = _cut(p, m, block_s)
+        m.madvise(mmap.MADV_DONTNEED)        # the pages the probes touched let go (not held as the process's memory)
+        return hours
+    except NotCut:
+        m.close()
+        return None
+
+
+def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
+    first = _line(m, 0, min(len(m), 400)).lstrip(b"\xef\xbb\xbf")
+    if first[60:80].rstrip() != b"RINEX VERSION / TYPE" or first[20:21] not in (b"O", b"o"):
+        raise NotCut("not a RINEX observation file")
+    try:
+        if float(first[:9]) < 3:
+            raise NotCut("RINEX 2")
+    except ValueError:
+        raise NotCut("version") from None
+    at = m.find(b"END OF HEADER")
+    nl = m.find(b"\n", at) if at >= 0 else -1
+    if nl < 0:
+        raise NotCut("no END OF HEADER")
+    head = m[:nl + 1]
+    system = _first_obs_time_system(head)
+    if system not in ("", "GPS"):
+        raise NotCut(f"epochs in {system} time")
+    lo, end = nl + 1, len(m)
+    e0 = _epoch_at_or_after(m, lo, lo, end)
+    e1 = m.rfind(b"\n>", lo, end)
+    t0 = _epoch_time_s(_line(m, e0, end)) if e0 < end else None
+    t1 = _epoch_time_s(_line(m, e1 + 1, end)) if e1 >= 0 else None
+    if t0 is None or t1 is None or t1 < t0:
+        raise NotCut("epochs")
+    k0, k1 = math.floor(t0 / block_s), math.floor(t1 / block_s)
+    starts = [e0] + [_first_epoch_from(m, k * block_s, lo, end) for k in range(k0 + 1, k1 + 1)] + [end]
+    blocks = [(k, a, b, _epoch_time_s(_line(m, a, end))) for k, a, b in zip(range(k0, k1 + 1), starts[:-1], starts[1:])
+              if b > a]
+    if e0 > lo or any(t is None for *_, t in blocks):
+        raise NotCut("the body does not begin with an epoch line")
+    return RinexHours(p, bytes(head), blocks, block_s, m)
+
+
+def _first_obs_time_system(head: bytes) -> str:
+    """The time system of TIME OF FIRST OBS ('' when blank: GPS for a GPS file, as the readers take it)."""
+    for line in head.split(b"\n"):
+        if line[60:80].rstrip(b"\r").rstrip() == b"TIME OF FIRST OBS":
+            return line[48:51].decode("latin-1").strip()
+    return ""
+
+
+def check_block(hours: RinexHours, j: int, info: dict, previous_last_s: float | None) -> None:
+    """NotCut unless block ``j`` read as a file (``info``: its header summary) is what the whole file's reading
+    holds of that block: no special records (a header record inside the body changes what follows it), no epoch
+    repeated or out of order, its first and last epochs in the block (so all are: they are in order), after the
+    previous block's last (``previous_last_s``, GPS s)."""
+    k, a, _, first = hours.blocks[j]
+    if info.get("events") or info.get("repeated_epochs") or info.get("epochs_out_of_order"):
+        raise NotCut("special records or epochs out of order")
+    last = info.get("time_last_obs_gps_s")
+    if last is None or math.floor(first / hours.block_s) != k or math.floor(last / hours.block_s) != k:
+        raise NotCut(f"an epoch outside its block (byte {a})")
+    if previous_last_s is not None and not first > previous_last_s:
+        raise NotCut(f"epochs out of order between blocks (byte {a})")
+
+
+_SUMMED = ("n_epochs", "n_epochs_power_failure", "n_gps_epochs")
+
+
+def join_obs_headers(infos: list) -> dict:
+    """The header of the whole file (:func:`cdgps_cli.io.rinex.read_rinex_obs`) from its blocks' headers, read in
+    order: the counts summed, the satellites joined, the last epoch the last block's."""
+    out = dict(infos[0])
+    for k in _SUMMED:
+        out[k] = sum(int(i[k]) for i in infos)
+    out["gps_satellites"] = sorted(set().union(*(i["gps_satellites"] for i in infos)))
+    systems = sorted(set().union(*(i["satellites_by_system"] for i in infos)))
+    out["satellites_by_system"] = {s: sorted(set().union(*(i["satellites_by_system"].get(s, ()) for i in infos)))
+                                   for s in systems}
+    counts = sorted(set().union(*(i["n_records_by_system"] for i in infos)))
+    out["n_records_by_system"] = {s: sum(int(i["n_records_by_system"].get(s, 0)) for i in infos) for s in counts}
+    out["time_last_obs_gps_s"] = infos[-1]["time_last_obs_gps_s"]
+    return out

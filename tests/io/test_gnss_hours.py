@@ -1,0 +1,165 @@
+"""A GNSS ingest of RINEX 3 files read block by block of GPS time (issue 29: a day of a 10 Hz pair in bounded memory).
+
+The independent check is the whole-file ingest (every file read at once, as before): the RUN written hour by hour
+is the same file, byte for byte, on simulated pairs (GPS L1 and several signals) and on the real mosaic-X5 pair;
+the blocks are made a minute long here so that short files cross many of them.  A file the blocks cannot give
+exactly (an epoch out of order across blocks, a compressed file, RINEX 2) and a file with an error are read whole:
+the same RUN, the same error.
+"""
+
+import gzip
+import shutil
+
+import pytest
+
+from cdgps_cli.config.structure import load_gnss_config, parse_gnss_config
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io import gnss_archive, gnss_hours
+from cdgps_cli.io.rinex_hours import join_obs_headers, rinex_hours
+from cdgps_cli.pipeline import gnss_ingest
+from tests._shared import REPO_ROOT, run_cli
+
+BLOCK_S = 60.0
+MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
+SPIRENT = REPO_ROOT.parent / "shared" / "data" / "rinex-ge"
+
+
+@pytest.fixture
+def minute_blocks(monkeypatch):
+    monkeypatch.setattr(gnss_archive, "OBS_BLOCK_S", BLOCK_S)
+
+
+def _ingest(cfg, out, whole: bool, monkeypatch, **kw) -> tuple[dict, list]:
+    """The ingest summary and its progress lines, hour by hour or (``whole``) every file at once."""
+    said = []
+    with monkeypatch.context() as m:
+        if whole:
+            m.setattr(gnss_hours, "hourly_inputs", lambda *a, **k: None)
+        s = gnss_ingest.ingest_gnss(cfg, out, progress=said.append, **kw)
+    return s, said
+
+
+def _same_run(cfg, tmp_path, monkeypatch, **kw) -> list:
+    s_h, said = _ingest(cfg, tmp_path / "hours.mcap", False, monkeypatch, **kw)
+    s_w, _ = _ingest(cfg, tmp_path / "whole.mcap", True, monkeypatch, **kw)
+    assert (tmp_path / "hours.mcap").read_bytes() == (tmp_path / "whole.mcap").read_bytes()
+    s_h.pop("output"), s_w.pop("output")
+    assert s_h == s_w
+    return said
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hours") / "sim"
+    assert run_cli("-q", "simulate-gnss", "--duration", "330", "--rate-hz", "2", "--slips", "6", "--seed", "3",
+                   "--raw-tags", "-o", d).exit_code == 0
+    return d
+
+
+def test_hour_by_hour_is_the_whole_file_ingest(sim, tmp_path, monkeypatch, minute_blocks):
+    said = _same_run(load_gnss_config(sim / "config.toml"), tmp_path, monkeypatch)
+    assert any("hour by hour" in m for m in said) and not any("reading the files whole" in m for m in said)
+    idx = __import__("json").loads(__import__("cdgps_cli.io.mcap", fromlist=["x"]).read_mcap(
+        tmp_path / "hours.mcap").attachment("gnss/obs/1/blocks.json"))
+    assert len(idx["blocks"]) >= 6                   # 330 s in blocks of a minute
+
+
+def test_blocks_join_to_the_whole_header(sim):
+    from cdgps_cli.io.rinex import read_rinex_obs  # noqa: PLC0415
+
+    h = rinex_hours(sim / "rover.rnx", BLOCK_S)
+    parts = [read_rinex_obs(h.path, read=h.block_bytes(j)) for j in range(len(h.blocks))]
+    h.close()
+    whole_info, whole = read_rinex_obs(sim / "rover.rnx")
+    assert len(parts) >= 6
+    assert join_obs_headers([i for i, _ in parts]) == whole_info
+    import pandas as pd  # noqa: PLC0415
+    pd.testing.assert_frame_equal(pd.concat([o for _, o in parts], ignore_index=True), whole)
+
+
+@pytest.mark.skipif(not SPIRENT.is_dir(), reason="needs ../shared/data/rinex-ge")
+def test_several_signals_hour_by_hour(tmp_path, monkeypatch, minute_blocks):
+    files = {"base": SPIRENT / "Base-static_MO_Spirent.obs", "rover": SPIRENT / "Rover-static-2km-east_MO_Spirent.obs"}
+    nav = [SPIRENT / "RINEX_GN_Spirent.23N", SPIRENT / "RINEX_EN_Spirent.23L"]
+    said = _same_run(_config(files, nav, ("G:L1", "G:L2", "E:E1", "E:E5a"), tmp_path), tmp_path, monkeypatch,
+                     rinex=files, nav_paths=nav)
+    assert any("hour by hour" in m for m in said)
+
+
+def _config(files: dict, nav: list, signals: tuple, tmp_path):
+    from cdgps_cli.pipeline.gnss_ingest import starter_gnss_config  # noqa: PLC0415
+
+    text = starter_gnss_config(files, nav_paths=nav, master="base", signals=list(signals))
+    return parse_gnss_config(text, str(tmp_path / "c.toml"), base_dir=tmp_path)
+
+
+@pytest.mark.skipif(not MOSAIC.is_dir(), reason="needs ../shared/data/real-pairs")
+def test_real_mosaic_pair_hour_by_hour(tmp_path, monkeypatch, minute_blocks):
+    files = {"base": MOSAIC / "base.obs", "rover": MOSAIC / "rover.obs"}
+    for signals in (("G:L1",), ("G:L1", "G:L2", "E:E1", "C:B1I")):
+        cfg = _config(files, [MOSAIC / "base.nav"], signals, tmp_path)
+        said = _same_run(cfg, tmp_path, monkeypatch, rinex=files, nav_paths=[MOSAIC / "base.nav"])
+        assert any("hour by hour" in m for m in said)
+
+
+def _move_epoch(src, dst, k_from: int, k_to: int) -> None:
+    """A RINEX 3 file with epoch record ``k_from`` moved before record ``k_to`` (out of time order)."""
+    text = src.read_text()
+    at = text.index("\n", text.index("END OF HEADER")) + 1
+    recs = [">" + r for r in text[at:].split(">")[1:]]
+    recs.insert(k_to, recs.pop(k_from))
+    dst.write_text(text[:at] + "".join(recs))
+
+
+def _copy_sim(sim, d, rover_name="rover.rnx"):
+    d.mkdir()
+    for f in ("base.rnx", "nav.rnx", "config.toml"):
+        shutil.copy(sim / f, d / f)
+    return d
+
+
+def test_files_the_blocks_cannot_give_are_read_whole(sim, tmp_path, monkeypatch, minute_blocks):
+    d = _copy_sim(sim, tmp_path / "late")
+    _move_epoch(sim / "rover.rnx", d / "rover.rnx", 400, 100)       # minute 3's epoch written in minute 0's
+    said = _same_run(load_gnss_config(d / "config.toml"), tmp_path, monkeypatch)
+    assert any("reading the files whole" in m for m in said)
+    z = _copy_sim(sim, tmp_path / "gz")
+    (z / "rover.rnx").write_bytes(gzip.compress((sim / "rover.rnx").read_bytes(), mtime=0))
+    assert rinex_hours(z / "rover.rnx", BLOCK_S) is None
+    said = _same_run(load_gnss_config(z / "config.toml"), tmp_path, monkeypatch)
+    assert not any("hour by hour" in m for m in said)
+
+
+def test_an_error_in_a_late_block_is_the_whole_file_error(sim, tmp_path, monkeypatch, minute_blocks):
+    d = _copy_sim(sim, tmp_path / "bad")
+    lines = (sim / "rover.rnx").read_text().splitlines(keepends=True)
+    k = [i for i, ln in enumerate(lines) if ln.startswith(">")][500] + 2       # a record line in minute 4
+    lines[k] = lines[k][:3] + "  12x45678.123" + lines[k][17:]
+    (d / "rover.rnx").write_text("".join(lines))
+    cfg = load_gnss_config(d / "config.toml")
+    errors = []
+    for whole in (False, True):
+        with pytest.raises(CdgpsError) as e:
+            _ingest(cfg, tmp_path / f"bad-{whole}.mcap", whole, monkeypatch)
+        errors.append(str(e.value))
+        assert not (tmp_path / f"bad-{whole}.mcap").exists()
+    assert errors[0] == errors[1] and f"line {k + 1}:" in errors[0]
+    r = run_cli("ingest", "--config", d / "config.toml", "-o", tmp_path / "bad.mcap")
+    assert r.exit_code == 2 and "Traceback" not in r.output and str(d / "rover.rnx") in r.output
+
+
+def test_thin_tables_keep_what_the_checks_read(sim):
+    from cdgps_cli.io.gnss_run import read_receiver_file  # noqa: PLC0415
+    import numpy as np  # noqa: PLC0415
+
+    rx = read_receiver_file("rover", "rinex", sim / "rover.rnx")
+    thin = gnss_hours.ThinTables()
+    half = len(rx.raw) // 2
+    thin.add(rx.raw.iloc[half:], None)                  # (satellites met in another order than sorted)
+    thin.add(rx.raw.iloc[:half], None)
+    t = thin.frame("raw")
+    assert list(t["sat"].cat.categories) == sorted(set(rx.raw["sat"]))
+    back = np.r_[rx.raw["sat"].to_numpy()[half:], rx.raw["sat"].to_numpy()[:half]]
+    assert (t["sat"].to_numpy() == back).all()
+    ph = np.r_[rx.raw["phase_cycles"].to_numpy()[half:], rx.raw["phase_cycles"].to_numpy()[:half]]
+    assert (np.isfinite(t["phase_cycles"].to_numpy()) == np.isfinite(ph)).all()
