@@ -44,9 +44,11 @@ class ThinTables:
     ``signals`` (time, satellite, signal, phase, LLI).  The satellite and signal columns become categoricals (their
     categories sorted)."""
 
-    def __init__(self):
+    def __init__(self, codes: dict | None = None):
         self._parts = {"raw": [], "signals": []}
-        self._codes: dict = {"sat": {}, "signal": {}}
+        self._codes: dict = {"sat": {}, "signal": {}} if codes is None else codes
+        """text → code per text column, shared by the tables of one receiver's files: the same categories, so
+        that their frames join without becoming strings."""
 
     def add(self, raw: pd.DataFrame, signals: pd.DataFrame | None) -> None:
         self._parts["raw"].append(self._thin(raw, _THIN_RAW, ("sat",)))
@@ -82,40 +84,61 @@ class ThinTables:
 def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: dict | None = None, nav_paths=None,
                   master: str | None = None, progress=None):
     """(:class:`~cdgps_cli.io.gnss_run.IngestInputs`, the blocks' generator, the mapped files) of an ingest whose
-    receivers are each one plain RINEX 3 file (the parameters of
-    :func:`cdgps_cli.pipeline.gnss_ingest.ingest_gnss`); None for any other ingest, or any error (the whole-file
-    ingest then reads the files, and names it).  ``inputs.receivers`` is filled as the generator ends; close the
-    mapped files (``.close()``) when done."""
+    receivers are each plain RINEX 3 files — one, or consecutive files of one record that do not overlap (the
+    parameters of :func:`cdgps_cli.pipeline.gnss_ingest.ingest_gnss`); None for any other ingest, or any error (the
+    whole-file ingest then reads the files, and names it).  ``inputs.receivers`` is filled as the generator ends;
+    close the mapped files (``.close()``) when done."""
     say = progress or (lambda m: None)
     try:
         files, pieces = g._ingest_files(cfg, rinex, ubx)
         master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
-        if (not master or master not in files or any(k != "rinex" or len(pieces[n]) != 1 for n, (k, _) in files.items())):
+        if not master or master not in files or any(k != "rinex" for k, _ in files.values()):
             return None
         nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
             expand_paths([str(p) for p in nav_paths], "--nav")
         g._refuse_overwriting_an_input(Path(out_path), pieces, nav_list)
     except g.CdgpsError:
         return None
-    order = [master, *[n for n in files if n != master]]
-    hours = {}
-    for n in order:
-        h = rinex_hours(pieces[n][0], gnss_archive.OBS_BLOCK_S)
-        if h is None:
-            for x in hours.values():
-                x.close()
+    hours = _Closer({})
+    for n in [master, *[n for n in files if n != master]]:
+        cut = _cut_record(pieces[n])
+        if cut is None:
+            hours.close()
             return None
-        hours[n] = h
+        hours.hours[n] = cut
+        if len(cut) > 1:          # the files in time order, as the whole-file ingest puts them before writing
+            pieces[n] = [pieces[n][h.order] for h in cut]
+            files[n] = ("rinex", g.pieces_text(pieces[n]))
     warnings: list[str] = []
     try:
         nav_ahead, glonass_k = g._glonass_nav(cfg.signals, nav_list)
         nav, nav_source = g._ingest_nav(cfg, nav_list, nav_ahead, {}, files, pieces, master, say, warnings)
     except g.CdgpsError:
-        for x in hours.values():
-            x.close()
+        hours.close()
         return None
     inp = g.IngestInputs(files, master, nav_list, {}, nav, {}, warnings, nav_source, pieces, None)
-    return inp, _blocks(cfg, inp, hours, glonass_k, say), _Closer(hours)
+    return inp, _blocks(cfg, inp, hours.hours, glonass_k, say), hours
+
+
+def _cut_record(paths: list) -> list | None:
+    """The files of a receiver cut into blocks (:func:`~cdgps_cli.io.rinex_hours.rinex_hours`), in time order; None
+    (the files read whole) when one cannot be cut or two overlap (the whole reading joins them, an epoch repeated
+    kept from the earlier file)."""
+    cut = []
+    for i, p in enumerate(paths):
+        h = rinex_hours(p, gnss_archive.OBS_BLOCK_S)
+        if h is None:
+            for x in cut:
+                x.close()
+            return None
+        h.order = i
+        cut.append(h)
+    cut.sort(key=lambda h: h.first_s)                   # (a stable sort: as join_tables orders them)
+    if any(b.first_s <= a.last_s for a, b in zip(cut, cut[1:])):
+        for x in cut:
+            x.close()
+        return None
+    return cut
 
 
 class _Closer:
@@ -123,8 +146,9 @@ class _Closer:
         self.hours = hours
 
     def close(self) -> None:
-        for h in self.hours.values():
-            h.close()
+        for cut in self.hours.values():
+            for h in cut:
+                h.close()
 
 
 def _empty_tables(signals) -> tuple:
@@ -133,43 +157,60 @@ def _empty_tables(signals) -> tuple:
 
 
 def _blocks(cfg: GnssConfig, inp, hours: dict, glonass_k: dict, say):
-    """For each block of GPS time: [(raw rows, signal rows or None)] per receiver (master first); at the end the
-    receivers (thin tables, the whole file's header) in ``inp.receivers``, their warnings first in
-    ``inp.warnings``.  NotCut or CdgpsError: the whole-file ingest must read them."""
+    """For each block of GPS time: [(raw rows, signal rows or None)] per receiver (master first; a receiver's
+    files' rows in that block joined); at the end the receivers (thin tables, the whole reading's header and
+    joins) in ``inp.receivers`` and ``inp.joins``, the reading's warnings first in ``inp.warnings``.  NotCut or
+    CdgpsError: the whole-file ingest must read them."""
     l1_opt = anchor_signal(cfg.signals) is not None
     names = list(hours)
-    index = {n: {k: j for j, (k, *_) in enumerate(h.blocks)} for n, h in hours.items()}
+    index = {n: {} for n in names}
+    for n, cut in hours.items():
+        for f, h in enumerate(cut):
+            for j, (k, *_) in enumerate(h.blocks):
+                index[n].setdefault(k, []).append((f, j))
     keys = sorted({k for ix in index.values() for k in ix})
-    thin = {n: ThinTables() for n in names}
-    infos: dict = {n: [] for n in names}
+    codes = {n: {"sat": {}, "signal": {}} for n in names}
+    thin = {n: [ThinTables(codes[n]) for _ in hours[n]] for n in names}
+    infos: dict = {n: [[] for _ in hours[n]] for n in names}
     last: dict = {n: None for n in names}
     for n in names:
-        say(f"reading RINEX {hours[n].path} ({n}) hour by hour …")
+        say(f"reading RINEX {inp.files[n][1]} ({n}) hour by hour …")
     for k in keys:
         block = []
-        for n, got in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k)):
-            if got is None:
-                block.append(_empty_tables(cfg.signals))
-                continue
-            raw, sig, info = got
-            check_block(hours[n], index[n][k], info, last[n])
-            last[n] = info["time_last_obs_gps_s"]
-            infos[n].append(info)
-            thin[n].add(raw, sig)
-            block.append((raw, sig))
+        for n, parts in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k)):
+            for f, j, (raw, sig, info) in parts:
+                check_block(hours[n][f], j, info, last[n])
+                last[n] = info["time_last_obs_gps_s"]
+                infos[n][f].append(info)
+                thin[n][f].add(raw, sig)
+            block.append(_joined(parts) if parts else _empty_tables(cfg.signals))
         yield block
-        del block
+        del block, parts
         heap.trim()           # (the block's freed pages back to the system: its memory does not add up block by block)
-    inp.receivers = {n: _receiver(cfg, n, hours[n].path, infos[n], thin[n], l1_opt) for n in names}
-    inp.warnings[0:0] = [w for n, rx in inp.receivers.items() for w in g._receiver_warnings(n, inp.files[n][1], rx)]
+    joins, join_warnings = {}, []
+    inp.receivers = {n: _receiver(cfg, inp, n, [h.path for h in hours[n]], infos[n], thin[n], l1_opt, joins,
+                                  join_warnings) for n in names}
+    inp.joins = joins
+    join_warnings = [w for n in inp.files for w in join_warnings if w[0] == n]
+    inp.warnings[0:0] = [w for _, w in join_warnings] + [w for n, rx in inp.receivers.items()
+                                                          for w in g._receiver_warnings(n, inp.files[n][1], rx)]
+
+
+def _joined(parts: list) -> tuple:
+    """(raw rows, signal rows) of a receiver's block read from several files (in time order)."""
+    if len(parts) == 1:
+        return parts[0][2][:2]
+    raw = pd.concat([p[2][0] for p in parts], ignore_index=True)
+    sigs = [p[2][1] for p in parts]
+    return raw, (None if sigs[0] is None else pd.concat(sigs, ignore_index=True))
 
 
 def _read_blocks(cfg: GnssConfig, hours: dict, index: dict, k: int, l1_opt: bool, glonass_k: dict) -> list:
-    """Each receiver's block ``k`` (:func:`_read_block`; None where it has no epoch in it), the first receiver's
-    read beside the others' (:func:`cdgps_cli.core.beside.both`: on a second core, the same tables bit for bit)."""
+    """Each receiver's parts of block ``k``: [(file, block, (raw, signals, header summary))] (:func:`_read_block`;
+    none where it has no epoch in it), the first receiver's read beside the others'
+    (:func:`cdgps_cli.core.beside.both`: on a second core, the same tables bit for bit)."""
     def read(n):
-        j = index[n].get(k)
-        return None if j is None else _read_block(cfg, hours[n], j, l1_opt, glonass_k)
+        return [(f, j, _read_block(cfg, hours[n][f], j, l1_opt, glonass_k)) for f, j in index[n].get(k, [])]
 
     names = list(hours)
     if len(names) < 2:
@@ -186,19 +227,32 @@ def _read_block(cfg: GnssConfig, hours, j: int, l1_opt: bool, glonass_k: dict) -
     return g._raw_from_rinex(obs), sig, info
 
 
-def _receiver(cfg: GnssConfig, n: str, p: Path, infos: list, thin: ThinTables, l1_opt: bool) -> g.GnssReceiver:
-    """The receiver of the whole file from its blocks: the joined header, the thin tables; the whole-file reading's
-    refusals (no GPS L1 phase, a signal missing)."""
-    if not infos:
-        raise NotCut("no epochs")
-    header, info = g.rinex_header_info(p, join_obs_headers(infos))
-    raw = thin.frame("raw")
-    heap.trim()                  # (the blocks' parts, joined, freed: their pages back to the system)
-    if not l1_opt:
-        g.refuse_no_l1_phase(p, "rinex", header, raw)
-    rx = g.GnssReceiver(n, "rinex", p.name, header, raw, info, None)
+def _receiver(cfg: GnssConfig, inp, n: str, paths: list, infos: list, thin: list, l1_opt: bool, joins: dict,
+              join_warnings: list) -> g.GnssReceiver:
+    """The receiver of its files from their blocks: each file's header joined from its blocks', the thin tables;
+    several files joined as the whole reading joins them (:func:`~cdgps_cli.io.gnss_sequence.join_receivers`:
+    ``joins[n]`` and the warnings, as (n, text), appended); the whole reading's refusals (a file without GPS L1
+    phase, a signal missing)."""
+    rxs = []
+    for p, inf, th in zip(paths, infos, thin):
+        if not inf:
+            raise NotCut("a file without epochs")
+        header, info = g.rinex_header_info(p, join_obs_headers(inf))
+        raw = th.frame("raw")
+        heap.trim()                  # (the blocks' parts, joined, freed: their pages back to the system)
+        if not l1_opt:
+            g.refuse_no_l1_phase(p, "rinex", header, raw)
+        rxs.append(g.GnssReceiver(n, "rinex", p.name, header, raw, info, None))
+    if len(rxs) == 1:
+        rx = rxs[0]
+    else:
+        rx, joins[n], w, order = g.join_receivers(n, rxs, [str(p) for p in paths])
+        if order != list(range(len(rxs))):
+            raise NotCut("the files' order")
+        join_warnings.extend((n, x) for x in w)
     if cfg.signals:
-        rx.signals = thin.frame("signals")
+        tabs = [th.frame("signals") for th in thin]
+        rx.signals = tabs[0] if len(tabs) == 1 else g.join_signal_tables(n, tabs, [str(p) for p in paths])
         heap.trim()
-        g.refuse_absent_signals(cfg.signals, rx.signals, p, n)
+        g.refuse_absent_signals(cfg.signals, rx.signals, inp.files[n][1], n)
     return rx

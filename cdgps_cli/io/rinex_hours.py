@@ -45,7 +45,13 @@ class RinexHours:
     head: bytes
     blocks: list
     block_s: float
+    first_s: float
+    """GPS s of the first epoch line (as written: the file's time system is GPS)."""
+    last_s: float
+    """GPS s of the last epoch line."""
     _map: mmap.mmap
+    order: int = 0
+    """The file's place in the list it was given in (a record of several files, :mod:`cdgps_cli.io.gnss_hours`)."""
 
     def block_bytes(self, j: int) -> tuple[bytes, bool]:
         """The ``read=`` argument of the readers for block ``j``: the header and that block's records."""
@@ -161,7 +167,7 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
               if b > a]
     if e0 > lo or any(t is None for *_, t in blocks):
         raise NotCut("the body does not begin with an epoch line")
-    return RinexHours(p, bytes(head), blocks, block_s, m)
+    return RinexHours(p, bytes(head), blocks, block_s, t0, t1, m)
 
 
 def _first_obs_time_system(head: bytes) -> str:

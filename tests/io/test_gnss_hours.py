@@ -163,3 +163,38 @@ def test_thin_tables_keep_what_the_checks_read(sim):
     assert (t["sat"].to_numpy() == back).all()
     ph = np.r_[rx.raw["phase_cycles"].to_numpy()[half:], rx.raw["phase_cycles"].to_numpy()[:half]]
     assert (np.isfinite(t["phase_cycles"].to_numpy()) == np.isfinite(ph)).all()
+
+
+def _split(src, dst_dir, cuts: list, drop: tuple = ()) -> list:
+    """A RINEX 3 file as consecutive files, cut before the epoch records of ``cuts`` (record numbers); the
+    records of ``drop`` (ranges) left out (a gap).  Returns the files, last first (given out of order)."""
+    text = src.read_text()
+    at = text.index("\n", text.index("END OF HEADER")) + 1
+    recs = [">" + r for r in text[at:].split(">")[1:]]
+    keep = [i for i in range(len(recs)) if not any(a <= i < b for a, b in drop)]
+    edges = [0, *cuts, len(recs)]
+    out = []
+    for m, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+        p = dst_dir / f"{src.stem}_{m}.rnx"
+        p.write_text(text[:at] + "".join(recs[i] for i in keep if a <= i < b))
+        out.append(p)
+    return out[::-1]
+
+
+def test_consecutive_files_hour_by_hour(sim, tmp_path, monkeypatch, minute_blocks):
+    """Hourly files (here cut mid-block, given last first, with a gap between two) join as the whole reading joins
+    them: the same RUN, joins and warnings."""
+    d = _copy_sim(sim, tmp_path / "pieces")
+    base = _split(sim / "base.rnx", d, [150, 333])
+    rover = _split(sim / "rover.rnx", d, [97, 400, 520], drop=((380, 400),))
+    cfg = load_gnss_config(d / "config.toml")
+    files = {"base": base, "rover": rover}
+    said = _same_run(cfg, tmp_path, monkeypatch, rinex=files, nav_paths=[d / "nav.rnx"])
+    assert any("hour by hour" in m for m in said)
+    s, _ = _ingest(cfg, tmp_path / "again.mcap", False, monkeypatch, rinex=files, nav_paths=[d / "nav.rnx"])
+    assert len(s["joins"]["rover"]["gaps"]) == 1 and any("gap" in w for w in s["warnings"])
+    (tmp_path / "over").mkdir()
+    over = _split(sim / "rover.rnx", tmp_path / "over", [300])       # epochs 300 … again: overlaps the last files
+    said = _same_run(cfg, tmp_path, monkeypatch, rinex={"base": base, "rover": rover + over[:1]},
+                     nav_paths=[d / "nav.rnx"])
+    assert any("reading the files whole" in m for m in said) or not any("hour by hour" in m for m in said)
