@@ -35,7 +35,28 @@ def _say(hours: float, what: str, r: dict) -> None:
           + ("" if not r["exit"] else f"  EXIT {r['exit']}: {r.get('stderr', '')[-300:]}"), file=sys.stderr, flush=True)
 
 
-def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: bool = True) -> dict:
+def _hourly_files(d: Path) -> Path:
+    """The pair of ``d`` as a receiver writes a day: one RINEX file per hour and antenna (``files/base_HH.rnx``, cut
+    at the hours by :mod:`cdgps_cli.io.rinex_hours`), and a config naming them by glob; returns the config."""
+    from cdgps_cli.io.rinex_hours import rinex_hours  # noqa: PLC0415
+
+    f = d / "files"
+    cfg = f / "config.toml"
+    if not cfg.exists():
+        f.mkdir(exist_ok=True)
+        for n in ("base", "rover"):
+            h = rinex_hours(d / f"{n}.rnx", 3600.0)
+            for j in range(len(h.blocks)):
+                (f / f"{n}_{j:02d}.rnx").write_bytes(h.block_bytes(j)[0])
+            h.close()
+        text = (d / "config.toml").read_text()
+        cfg.write_text(text.replace('"base.rnx"', '"base_*.rnx"').replace('"rover.rnx"', '"rover_*.rnx"')
+                       .replace('"nav.rnx"', '"../nav.rnx"'))
+    return cfg
+
+
+def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: bool = True,
+         hourly_files: bool = False) -> dict:
     d = workdir / f"gnss10-{hours:g}h"
     if not (d / "config.toml").exists():
         r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "10", "--slips", "30",
@@ -48,6 +69,8 @@ def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: boo
     if whole:
         steps += [("init", ["init", "run.mcap", "-o", "init.json"]),
                   ("estimate", ["estimate", "run.mcap", "--init", "init.json", "-o", "states.mcap"])]
+    if hourly_files:
+        steps.append(("ingest, hourly files", ["ingest", "--config", str(_hourly_files(d)), "-o", "run-files.mcap"]))
     for name, args in steps:
         r = _timed(args, cwd=d)
         rec["stages"][name] = r
@@ -65,15 +88,16 @@ def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: boo
 
 
 def table(records: list[dict]) -> str:
-    lines = ["| record (10 Hz) | ingest | info | init whole | estimate whole | init, a window (max) | "
-             "estimate, a window (max) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| record (10 Hz) | ingest | ingest, hourly files | info | init whole | estimate whole | "
+             "init, a window (max) | estimate, a window (max) |", "|---|---|---|---|---|---|---|---|"]
 
     def cell(r):
         return "—" if r is None else f"{r['peak_rss_mib']:.0f} MiB / {r['wall_s']:.1f} s"
     for rec in records:
         st, ws = rec["stages"], rec["windows"]
         worst = {s: max((w[s] for w in ws), key=lambda r: r["peak_rss_mib"]) if ws else None for s in ("init", "estimate")}
-        lines.append(f"| {rec['hours']:g} h | {cell(st.get('ingest'))} | {cell(st.get('info'))} | "
+        lines.append(f"| {rec['hours']:g} h | {cell(st.get('ingest'))} | {cell(st.get('ingest, hourly files'))} | "
+                     f"{cell(st.get('info'))} | "
                      f"{cell(st.get('init'))} | {cell(st.get('estimate'))} | {cell(worst['init'])} | "
                      f"{cell(worst['estimate'])} |")
     return "\n".join(lines)
@@ -84,12 +108,14 @@ def main() -> None:
     ap.add_argument("--hours", type=float, nargs="+", default=[1.0, 3.0])
     ap.add_argument("--window-s", type=float, default=3600.0)
     ap.add_argument("--no-whole", action="store_true", help="leave out the whole record's init and estimate")
+    ap.add_argument("--hourly-files", action="store_true", help="also ingest the pair cut into one file per hour and "
+                    "antenna")
     ap.add_argument("--no-windows", action="store_true", help="leave out the windows' init and estimate (ingest and "
                     "info only: docs/benchmarks/gnss_ingest.json)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-gnss-windows"))
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows) for h in a.hours]
+    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows, a.hourly_files) for h in a.hours]
     result = {"pair": "simulate-gnss --rate-hz 10 --slips 30 --seed 1 (static, GPS L1)",
               "machine": machine(), "python": platform.python_version(),
               "records": records, "table": table(records),

@@ -145,8 +145,11 @@ def join_tables(pieces, time_col: str, interval_s: float, time_text=lambda t: f"
         name, tab = pieces[i]
         t = tab[time_col].to_numpy(dtype=np.float64)
         epochs = np.unique(t)
-        dup = np.isin(t, seen)
-        inside = ~dup & (t <= prev_last)
+        early = t <= prev_last                        # (only these can repeat or interleave an earlier file)
+        dup = np.zeros(t.size, dtype=bool)
+        if early.any():
+            dup[early] = np.isin(t[early], seen)
+        inside = ~dup & early
         if inside.any():
             t_bad = float(t[np.flatnonzero(inside)[0]])
             raise CdgpsError(f"{name}: epoch {time_text(t_bad)} lies inside the span of the earlier file {prev_name} "
@@ -154,7 +157,7 @@ def join_tables(pieces, time_col: str, interval_s: float, time_text=lambda t: f"
                              f"pieces of one record")
         if dup.any():
             _overlap(rep, kept, tab, dup, name, time_col, time_text, pre)
-        use = tab[~dup]
+        use = tab[~dup] if dup.any() else tab
         if len(use) and prev_name is not None:
             _gap(rep, prev_name, name, prev_last, float(use[time_col].iloc[0]), interval_s, time_text, pre)
         rep.files.append({"file": name, "first_s": float(epochs[0]) if epochs.size else None,
@@ -162,7 +165,9 @@ def join_tables(pieces, time_col: str, interval_s: float, time_text=lambda t: f"
                           "epochs_used": int(np.unique(t[~dup]).size)})
         if len(use):
             kept.append(use)
-            seen = np.union1d(seen, np.unique(use[time_col].to_numpy(dtype=np.float64)))
+            u = epochs if not dup.any() else np.unique(use[time_col].to_numpy(dtype=np.float64))
+            # (after every epoch seen, the usual case: appended, the same sorted union without sorting it again)
+            seen = np.concatenate([seen, u]) if not seen.size or u[0] > seen[-1] else np.union1d(seen, u)
             prev_last, prev_name = float(seen[-1]), name
     table = pd.concat(kept, ignore_index=True) if kept else pieces[order[0]][1].iloc[:0].reset_index(drop=True)
     return table, rep, order
