@@ -1,13 +1,15 @@
 """A GNSS ingest of long RINEX files, hour by hour, in bounded memory (issue 29).
 
 A 10 Hz pair read whole held ≈ 3 GB for a day (the files' text, their tables and the messages built from them).
-When every receiver is one plain RINEX 3 file (:func:`cdgps_cli.io.rinex_hours.rinex_hours`), the ingest reads
-each receiver's file one block of GPS time at a time (:data:`cdgps_cli.io.gnss_archive.OBS_BLOCK_S`, the blocks of
+When every receiver is plain RINEX 3 — one file, or consecutive files of one record that do not overlap (a day
+as hourly files) — (:func:`cdgps_cli.io.rinex_hours.rinex_hours`), the ingest reads each receiver's files one block
+of GPS time at a time (:data:`cdgps_cli.io.gnss_archive.OBS_BLOCK_S`, the blocks of
 the RUN's observation archives): :func:`hourly_inputs` returns the inputs and the generator of the blocks' tables
 that :func:`cdgps_cli.io.gnss_run.write_gnss_run_blocks` writes as they come.  What the checks and the summaries
 need of the whole record is kept in thin tables (:class:`ThinTables`: time, satellite, signal, whether a phase and
-a code are there, loss of lock; ≈ 20 bytes a row), which become the receivers' ``raw`` and ``signals`` once the last
-block is read, with the header the whole file's reading gives (:func:`~cdgps_cli.io.rinex_hours.join_obs_headers`).
+a code are there, loss of lock; ≈ 18 bytes a row), which become the receivers' ``raw`` and ``signals`` once the last
+block is read, with the header the whole file's reading gives (:func:`~cdgps_cli.io.rinex_hours.join_obs_headers`;
+several files joined by :func:`~cdgps_cli.io.gnss_sequence.join_receivers`, as the whole reading joins them).
 
 The RUN written is the one the whole-file ingest writes, byte for byte (``tests/io/test_gnss_hours.py``).  Anything
 the blocks cannot give exactly as the whole file (:class:`~cdgps_cli.io.rinex_hours.NotCut`) and every error is

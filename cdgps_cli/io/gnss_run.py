@@ -20,10 +20,12 @@ Layout (format details in docs/gnss-pipeline.md):
 * topic ``/cdgps/gnss/ephemeris`` — one message per broadcast ephemeris record (time_s = toc,
   GPS s; fields the record lacks, e.g. a blank fit interval, are left out);
 * attachments ``gnss/receivers.json`` (names, formats, source files, headers, read summaries),
-  ``gnss/obs/<receiver>.npz.zst`` (the raw table as zstd-compressed numpy arrays: the fast path
-  every later stage reads), ``gnss/ephemeris.json`` (the ephemeris table), ``config.toml`` (the
-  GNSS run config); with ``[gnss] signals`` also ``gnss/signals/<receiver>.npz.zst`` (every asked-for
-  signal of the receiver, :data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`);
+  ``gnss/obs/<k>/<b>_<hour>.npz.zst`` (receiver k's raw table as zstd-compressed numpy arrays, one per hour of
+  GPS time, written after that hour's messages, :mod:`cdgps_cli.io.gnss_archive`; the indexes
+  ``gnss/obs/<k>/blocks.json`` after the last hour: the fast path every later stage reads), ``gnss/info.json``,
+  ``gnss/ephemeris.json`` (the ephemeris table), ``config.toml`` (the GNSS run config); with ``[gnss] signals``
+  also ``gnss/signals/<k>/…`` (every asked-for signal of the receiver,
+  :data:`~cdgps_cli.io.rinex_signals.SIGNAL_COLUMNS`), in the same blocks;
 * metadata ``cdgps.ingest`` with ``kind = gnss``, the master, the inputs and their sha256.
 """
 
