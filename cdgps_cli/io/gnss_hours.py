@@ -119,7 +119,8 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
         hours.close()
         return None
     inp = g.IngestInputs(files, master, nav_list, {}, nav, {}, warnings, nav_source, pieces, None)
-    return inp, _blocks(cfg, inp, hours.hours, glonass_k, say), hours
+    n = len({k for cut in hours.hours.values() for h in cut for k, *_ in h.blocks})
+    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, glonass_k, say), n), hours
 
 
 def _cut_record(paths: list) -> list | None:

@@ -369,18 +369,16 @@ def _time_sorted(tab: pd.DataFrame | None) -> bool:
 
 def record_blocks(receivers: dict):
     """The receivers' tables in blocks of GPS time (:data:`~cdgps_cli.io.gnss_archive.OBS_BLOCK_S`), as a long
-    file's hours are read (:mod:`cdgps_cli.io.rinex_hours`): for each block, in time order, [(its raw rows, its
-    signal rows or None)] per receiver.  A table not in time order: one block of everything (its archives are still
+    file's hours are read (:mod:`cdgps_cli.io.rinex_hours`): :class:`Blocks` of, for each block in time order,
+    [(its raw rows, its signal rows or None)] per receiver.  A table not in time order: one block of everything (its archives are still
     cut by hour, and its messages put in time order, by the writer)."""
     tabs = [(rx.raw, rx.signals) for rx in receivers.values()]
     if not all(_time_sorted(r) and _time_sorted(g) for r, g in tabs):
-        yield tabs
-        return
+        return Blocks([tabs], 1)
     bounds = [[_numbered(t) if t is not None else None for t in pair] for pair in tabs]
-    keys = sorted({k for pair in bounds for b in pair if b is not None for k in b})
-    for k in keys or [None]:
-        yield [tuple(None if t is None else t.iloc[slice(*b.get(k, (0, 0)))] for t, b in zip(pair, pb))
-               for pair, pb in zip(tabs, bounds)]
+    keys = sorted({k for pair in bounds for b in pair if b is not None for k in b}) or [None]
+    return Blocks(([tuple(None if t is None else t.iloc[slice(*b.get(k, (0, 0)))] for t, b in zip(pair, pb))
+                    for pair, pb in zip(tabs, bounds)] for k in keys), len(keys))
 
 
 def _numbered(tab: pd.DataFrame) -> dict:
@@ -788,12 +786,26 @@ def write_gnss_run(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, pos
                                  lambda: (pos_src, common, lock, extra_attachments), extra_inputs)
 
 
+class Blocks:
+    """An iterable of a record's blocks (:func:`write_gnss_run_blocks`) that knows how many it holds (the progress
+    bar's total)."""
+
+    def __init__(self, items, n: int):
+        self.items, self.n = items, n
+
+    def __iter__(self):
+        return iter(self.items)
+
+    def __len__(self) -> int:
+        return self.n
+
+
 def write_gnss_run_blocks(cfg: GnssConfig, out_path: str | Path, inp: IngestInputs, names: list, blocks, finish,
                           extra_inputs: dict | None = None) -> dict:
     """:func:`write_gnss_run` of observations that come block by block.
 
-    ``names``: the receivers, master first; ``blocks``: iterable, for each block of GPS time in time order, of
-    [(raw rows, signal rows or None)] per receiver of ``names`` (:func:`record_blocks`; an ingest reading long files hour by hour fills
+    ``names``: the receivers, master first; ``blocks``: :class:`Blocks` (an iterable with a length), for each block
+    of GPS time in time order, of [(raw rows, signal rows or None)] per receiver of ``names`` (:func:`record_blocks`; an ingest reading long files hour by hour fills
     ``inp.receivers`` as it goes).  ``finish()``, called once every block is written, returns (``pos_src``,
     ``common``, ``lock``, ``extra_attachments``) as :func:`write_gnss_run` takes them (its checks may raise: the
     output is then not written).
@@ -866,12 +878,13 @@ def _write_observations(out: McapOut, ch: int, names: list, blocks) -> int:
     and zstd release the GIL).  Returns the number of messages."""
     archives = [_ReceiverArchives(i) for i in range(len(names))]
     n_msg = 0
-    bar = progress.bar(None, f"writing {out.path.name}", "msg")
+    bar = progress.bar(len(blocks), f"writing {out.path.name}", "block")
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
         for block in blocks:
             packed = [a for arch, (raw, sig) in zip(archives, block) for a in arch.add(raw, sig, pool.submit)]
-            n_msg += _write_obs_tables(out, ch, {n: raw for n, (raw, _) in zip(names, block)}, bar)
+            n_msg += _write_obs_tables(out, ch, {n: raw for n, (raw, _) in zip(names, block)})
             _attach_packed(out, packed)
+            bar.update(1)
         _attach_packed(out, [a for arch in archives for a in arch.finish(pool.submit)])
     bar.close()
     return n_msg
@@ -972,9 +985,9 @@ def _write_obs_messages(out: McapOut, ch: int, receivers: dict) -> int:
     return n
 
 
-def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar) -> int:
+def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar=None) -> int:
     """One message per receiver and epoch of the raw tables (``raws``: receiver name → its rows), in time order
-    across receivers; ``bar`` counts them.
+    across receivers; ``bar``, if given, counts them.
 
     The bytes of :meth:`McapOut.write` of each epoch's payload (:func:`_obs_payload`), made from the
     texts of a block of rows' values (one orjson call per column and block, no dict per message;
@@ -1019,7 +1032,8 @@ def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar) -> int:
             datas.append(data)
             names.append(n)
         out.write_encoded(ch, times, stamps, datas, names)
-        bar.update(len(part))
+        if bar is not None:
+            bar.update(len(part))
     return len(order)
 
 
