@@ -1,0 +1,76 @@
+"""`gnss_ingest.lock_summary` (the lock counters `ingest` records per receiver and satellite): cut in groups of
+satellites (a day's rows are not segmented at once, issue 29) it counts what one pass counts, and both count what a
+plain loop over each satellite's rows counts (the rule: a new arc at the first row, at a slip flag — LLI bit 0 — and
+after a gap over 1.5 epoch intervals); the thin tables an hour-by-hour ingest keeps give the same counts as the
+receiver's full table."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cdgps_cli.core.gps_time import nominal_interval_s
+from cdgps_cli.io.gnss_hours import ThinTables
+from cdgps_cli.io.gnss_run import GnssReceiver, read_receiver_file
+from cdgps_cli.pipeline import gnss_ingest
+from cdgps_cli.pipeline.gnss_ingest import anchor_obs, lock_obs, lock_summary
+from tests._shared import run_cli
+
+
+@pytest.fixture(scope="module")
+def rover(tmp_path_factory):
+    d = tmp_path_factory.mktemp("lock")
+    assert run_cli("-q", "simulate-gnss", "--duration", "600", "--slips", "12", "--seed", "8", "-o", d).exit_code == 0
+    rx = read_receiver_file("rover", "rinex", d / "rover.rnx")
+    raw = rx.raw.copy()
+    gone = raw.index[(raw["sat"] == raw["sat"].iloc[0]) & raw["time_gps_s"].between(raw["time_gps_s"].iloc[0] + 100,
+                                                                                     raw["time_gps_s"].iloc[0] + 130)]
+    rx.raw = raw.drop(gone).reset_index(drop=True)        # a 30 s outage of one satellite: a gap
+    return rx
+
+
+def _by_loop(rx) -> dict:
+    r = rx.raw[np.isfinite(rx.raw["phase_cycles"].to_numpy())]
+    interval = nominal_interval_s(r["time_gps_s"].to_numpy())
+    out = {}
+    for sat, g in r.groupby("sat", sort=True):
+        t, lli = g["time_gps_s"].tolist(), g["lli"].tolist()
+        arcs = slips = 0
+        for i in range(len(t)):
+            if i == 0 or lli[i] & 1 or t[i] - t[i - 1] > 1.5 * interval:
+                arcs += 1
+            slips += bool(i and lli[i] & 1)
+        out[sat] = {"rows": len(t), "slips": slips, "half_cycle_rows": sum(bool(x & 2) for x in lli), "arcs": arcs}
+    return out
+
+
+def test_counts_by_a_plain_loop(rover):
+    got = lock_summary(rover, anchor_obs(rover, ()))
+    assert got == _by_loop(rover)
+    assert sum(v["slips"] for v in got.values()) >= 6 and max(v["arcs"] for v in got.values()) >= 3
+
+
+def test_groups_of_satellites_count_as_one_pass(rover, monkeypatch):
+    whole = lock_summary(rover, anchor_obs(rover, ()))
+    monkeypatch.setattr(gnss_ingest, "_LOCK_ROWS_PER_PASS", 700)          # a few satellites a pass
+    assert len(gnss_ingest._channel_groups(np.bincount(np.unique(rover.raw["sat"], return_inverse=True)[1]))) > 3
+    assert lock_summary(rover, anchor_obs(rover, ())) == whole
+    monkeypatch.setattr(gnss_ingest, "_LOCK_ROWS_PER_PASS", 1)             # one satellite a pass
+    assert lock_summary(rover, anchor_obs(rover, ())) == whole
+
+
+def test_thin_tables_count_as_the_full_table(rover):
+    thin = ThinTables()
+    for lo in range(0, len(rover.raw), 1000):                               # in blocks, as read hour by hour
+        thin.add(rover.raw.iloc[lo:lo + 1000], None)
+    rx = GnssReceiver("rover", "rinex", "rover.rnx", rover.header, thin.frame("raw"), rover.info)
+    assert str(rx.raw["sat"].dtype) == "category" and rx.raw["phase_cycles"].dtype == np.float32
+    assert lock_summary(rx, lock_obs(rx, ())) == lock_summary(rover, anchor_obs(rover, ()))
+
+
+def test_no_phase_at_all():
+    import pandas as pd  # noqa: PLC0415
+
+    obs = pd.DataFrame({"time_gps_s": [1.0, 2.0], "sat": ["G01", "G01"], "phase_l1_cycles": [math.nan, math.nan],
+                        "lli_l1": [0, 0]})
+    assert lock_summary(None, obs) == {}
