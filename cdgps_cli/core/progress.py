@@ -166,7 +166,8 @@ class Bar:
             self._tqdm.refresh()
 
     # -- end
-    def close(self) -> None:
+    def close(self, done: bool = True) -> None:
+        """End the bar; ``done=False``: the work stopped (an error): no "done" line."""
         if self._closed:
             return
         if self._tqdm is not None:
@@ -174,7 +175,7 @@ class Bar:
             self._tqdm.close()
         else:
             took = time.monotonic() - self._t0
-            if self._printed or took >= PLAIN_MIN_S:
+            if done and (self._printed or took >= PLAIN_MIN_S):
                 self._line(f"done, {self.n} {self.unit} in {took:.1f} s" if self.n else f"done in {took:.1f} s")
         self._closed = True
         with _lock:
@@ -313,4 +314,4 @@ def close_all() -> None:
     with _lock:
         bars = list(_active)
     for b in bars:
-        b.close()
+        b.close(done=False)

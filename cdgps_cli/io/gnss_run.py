@@ -879,13 +879,17 @@ def _write_observations(out: McapOut, ch: int, names: list, blocks) -> int:
     archives = [_ReceiverArchives(i) for i in range(len(names))]
     n_msg = 0
     bar = progress.bar(len(blocks), f"writing {out.path.name}", "block")
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
-        for block in blocks:
-            packed = [a for arch, (raw, sig) in zip(archives, block) for a in arch.add(raw, sig, pool.submit)]
-            n_msg += _write_obs_tables(out, ch, {n: raw for n, (raw, _) in zip(names, block)})
-            _attach_packed(out, packed)
-            bar.update(1)
-        _attach_packed(out, [a for arch in archives for a in arch.finish(pool.submit)])
+    try:
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
+            for block in blocks:
+                packed = [a for arch, (raw, sig) in zip(archives, block) for a in arch.add(raw, sig, pool.submit)]
+                n_msg += _write_obs_tables(out, ch, {n: raw for n, (raw, _) in zip(names, block)})
+                _attach_packed(out, packed)
+                bar.update(1)
+            _attach_packed(out, [a for arch in archives for a in arch.finish(pool.submit)])
+    except BaseException:
+        bar.close(done=False)              # (no "done" line for work that stopped)
+        raise
     bar.close()
     return n_msg
 

@@ -735,6 +735,14 @@ OBS_TIME_SYSTEMS = ("GPS", "GAL", "QZS", "BDT", "GLO")
 _DEFAULT_TIME_SYSTEMS = {"R": "GLO", "C": "BDT"}
 
 
+def _epoch_as_written(hdr: _ObsHeader, t_s: float) -> str:
+    """'epoch 2024-01-01 00:04:10 GPST' of an epoch read at ``t_s`` (its calendar time as the file writes it, in the
+    file's time system): where in a long file a malformed record lies, besides its line."""
+    system = epoch_time_system(hdr.info)
+    text = gps_time_str(t_s)
+    return f"epoch {text if system == 'GPS' else text.replace(' GPST', ' ' + system)}"
+
+
 def epoch_time_system(info: dict) -> str:
     """The time system of an observation file's epoch tags: its header's (``time_system``), else its satellite
     system's default (:data:`_DEFAULT_TIME_SYSTEMS`)."""
@@ -1155,7 +1163,8 @@ def _parse_obs_v2(lines: list[str], start: int, hdr: _ObsHeader, cols: _GpsL1Col
                     _append_row(rows, t, sat, fields, cols, clk, flag)
                 except ValueError:
                     bad = _first_bad_line_v2(rec_lines, cols)
-                    raise hdr.error(i + 1 + bad, f"malformed observation record for {sat}: {lines[i + bad].rstrip()!r}") from None
+                    raise hdr.error(i + 1 + bad, f"malformed observation record for {sat} ({_epoch_as_written(hdr, t)}): "
+                                                 f"{lines[i + bad].rstrip()!r}") from None
             i += per_sat
     return rows, summary.result()
 
@@ -1345,7 +1354,8 @@ def _records_v3_bulk(lines, hdr: _ObsHeader, group, rows, summary) -> None:
                 sn = _obs_field(rec, cols.i_snr, 3)[0] if cols.i_snr >= 0 else None
                 _append_row(rows, float(t_arr[e]), sat, (ph, cd, sn), cols, clk_ep[e], flag_ep[e])
             except ValueError:
-                raise hdr.error(j + 1, f"malformed observation record for {sat}: {rec.rstrip()[:120]!r}") from None
+                raise hdr.error(j + 1, f"malformed observation record for {sat} "
+                                       f"({_epoch_as_written(hdr, float(t_arr[e]))}): {rec.rstrip()[:120]!r}") from None
         return
     keep = ~(np.isnan(phase) & np.isnan(code))
     has_ph = ~np.isnan(phase)

@@ -82,8 +82,10 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         inp, blocks, mapped = hourly
         try:
             return _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say)
-        except (CdgpsError, gnss_hours.NotCut) as exc:
+        except gnss_hours.NotCut as exc:
             say(f"reading the files whole ({exc}) …")
+        except CdgpsError:                # (named by the whole reading: the file's own line, not a block's)
+            say("an error in a block of the files: reading them whole, which names it …")
         finally:
             mapped.close()
     inp = gnss_run.read_ingest_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
