@@ -874,19 +874,20 @@ def _write_ephemerides(out: McapOut, nav: pd.DataFrame | None, nav_source: str) 
 
 def _write_observations(out: McapOut, ch: int, names: list, blocks) -> int:
     """Each block's observation messages (:func:`_write_obs_tables`), then its archives; the archives' indexes
-    after the last block.  The archives are packed in a worker thread while the messages are built (numpy's copies
-    and zstd release the GIL).  Returns the number of messages."""
+    after the last block.  A block's archives are packed in a worker thread while its messages are built (numpy's
+    copies and zstd release the GIL).  Returns the number of messages."""
     archives = [_ReceiverArchives(i) for i in range(len(names))]
     n_msg = 0
     bar = progress.bar(len(blocks), f"writing {out.path.name}", "block")
     try:
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
-            for block in blocks:
+        for block in blocks:
+            # a pool per block: no thread is left while the next block is read (its reading may fork, core/beside.py)
+            with ThreadPoolExecutor(max_workers=1, thread_name_prefix="cdgps-archive") as pool:
                 packed = [a for arch, (raw, sig) in zip(archives, block) for a in arch.add(raw, sig, pool.submit)]
                 n_msg += _write_obs_tables(out, ch, {n: raw for n, (raw, _) in zip(names, block)})
                 _attach_packed(out, packed)
-                bar.update(1)
-            _attach_packed(out, [a for arch in archives for a in arch.finish(pool.submit)])
+            bar.update(1)
+        _attach_packed(out, [a for arch in archives for a in arch.finish(lambda f, *a: f(*a))])
     except BaseException:
         bar.close(done=False)              # (no "done" line for work that stopped)
         raise
