@@ -110,6 +110,7 @@ class Bar:
         if _isatty(stream):
             from tqdm import tqdm
 
+            tqdm.monitor_interval = 0       # no monitor thread: stages fork (core/beside.py) while a bar is up
             sized = _sized(stream)
             self._tqdm = tqdm(total=self.total, desc=desc, unit=unit, file=stream, leave=False, delay=BAR_DELAY_S,
                               mininterval=0.2, dynamic_ncols=sized, ncols=None if sized else 80,

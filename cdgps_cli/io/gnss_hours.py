@@ -32,7 +32,7 @@ from cdgps_cli.io import gnss_run as g
 from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_obs
 from cdgps_cli.io.rinex_hours import NotCut, check_block, join_obs_headers, rinex_hours
-from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS, read_rinex_signals
+from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS, first_of_repeated_epochs, read_rinex_signals
 
 __all__ = ["hourly_inputs", "ThinTables", "NotCut"]
 
@@ -48,20 +48,20 @@ class ThinTables:
 
     def __init__(self, codes: dict | None = None):
         self._parts = {"raw": [], "signals": []}
-        self._codes: dict = {"sat": {}, "signal": {}} if codes is None else codes
-        """text → code per text column, shared by the tables of one receiver's files: the same categories, so
-        that their frames join without becoming strings."""
+        self._codes: dict = new_codes() if codes is None else codes
+        """table → text column → (text → code), shared by the tables of one receiver's files: the same categories,
+        so that their frames join without becoming strings (:func:`new_codes`)."""
 
     def add(self, raw: pd.DataFrame, signals: pd.DataFrame | None) -> None:
-        self._parts["raw"].append(self._thin(raw, _THIN_RAW, ("sat",)))
+        self._parts["raw"].append(self._thin(raw, _THIN_RAW, self._codes["raw"]))
         if signals is not None:
-            self._parts["signals"].append(self._thin(signals, _THIN_SIGNALS, ("sat", "signal")))
+            self._parts["signals"].append(self._thin(signals, _THIN_SIGNALS, self._codes["signals"]))
 
-    def _thin(self, tab: pd.DataFrame, dtypes: dict, text: tuple) -> dict:
+    @staticmethod
+    def _thin(tab: pd.DataFrame, dtypes: dict, text: dict) -> dict:
         out = {c: tab[c].to_numpy().astype(dt) for c, dt in dtypes.items()}
-        for c in text:
+        for c, table in text.items():
             codes, uniques = pd.factorize(tab[c].to_numpy(dtype=object))
-            table = self._codes[c]
             glob = np.array([table.setdefault(u, len(table)) for u in uniques.tolist()], dtype=np.int32)
             out[c] = glob[codes] if codes.size else np.zeros(0, dtype=np.int32)
         return out
@@ -70,17 +70,22 @@ class ThinTables:
         parts = self._parts[kind]
         if not parts:
             return None
-        cols = {}
+        cols, text = {}, self._codes[kind]
         for c in list(parts[0]):
             v = np.concatenate([p.pop(c) for p in parts])
-            if c in self._codes:
-                names = sorted(self._codes[c])
-                rank = np.empty(len(self._codes[c]), dtype=np.int32)
-                rank[[self._codes[c][x] for x in names]] = np.arange(len(names), dtype=np.int32)
+            if c in text:
+                names = sorted(text[c])
+                rank = np.empty(len(text[c]), dtype=np.int32)
+                rank[[text[c][x] for x in names]] = np.arange(len(names), dtype=np.int32)
                 v = pd.Categorical.from_codes(rank[v] if v.size else v, categories=names)
             cols[c] = v
         parts.clear()
         return pd.DataFrame(cols, copy=False)
+
+
+def new_codes() -> dict:
+    """Empty code tables of :class:`ThinTables` (one per table and text column)."""
+    return {"raw": {"sat": {}}, "signals": {"sat": {}, "signal": {}}}
 
 
 def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: dict | None = None, nav_paths=None,
@@ -102,6 +107,7 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
     except g.CdgpsError:
         return None
     hours = _Closer({})
+    given = {n: list(ps) for n, ps in pieces.items()}
     for n in [master, *[n for n in files if n != master]]:
         cut = _cut_record(pieces[n])
         if cut is None:
@@ -109,7 +115,7 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
             return None
         hours.hours[n] = cut
         if len(cut) > 1:          # the files in time order, as the whole-file ingest puts them before writing
-            pieces[n] = [pieces[n][h.order] for h in cut]
+            pieces[n] = [given[n][h.order] for h in cut]
             files[n] = ("rinex", g.pieces_text(pieces[n]))
     warnings: list[str] = []
     try:
@@ -120,7 +126,7 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
         return None
     inp = g.IngestInputs(files, master, nav_list, {}, nav, {}, warnings, nav_source, pieces, None)
     n = len({k for cut in hours.hours.values() for h in cut for k, *_ in h.blocks})
-    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, glonass_k, say), n), hours
+    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, given, glonass_k, say), n), hours
 
 
 def _cut_record(paths: list) -> list | None:
@@ -159,11 +165,12 @@ def _empty_tables(signals) -> tuple:
     return raw, (pd.DataFrame({c: np.zeros(0) for c in SIGNAL_COLUMNS}) if signals else None)
 
 
-def _blocks(cfg: GnssConfig, inp, hours: dict, glonass_k: dict, say):
+def _blocks(cfg: GnssConfig, inp, hours: dict, given: dict, glonass_k: dict, say):
     """For each block of GPS time: [(raw rows, signal rows or None)] per receiver (master first; a receiver's
     files' rows in that block joined); at the end the receivers (thin tables, the whole reading's header and
     joins) in ``inp.receivers`` and ``inp.joins``, the reading's warnings first in ``inp.warnings``.  NotCut or
-    CdgpsError: the whole-file ingest must read them."""
+    CdgpsError: the whole-file ingest must read them.  ``given``: each receiver's files as given (their order and
+    spelling: the whole reading's joins name them so)."""
     l1_opt = anchor_signal(cfg.signals) is not None
     names = list(hours)
     index = {n: {} for n in names}
@@ -172,7 +179,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, glonass_k: dict, say):
             for j, (k, *_) in enumerate(h.blocks):
                 index[n].setdefault(k, []).append((f, j))
     keys = sorted({k for ix in index.values() for k in ix})
-    codes = {n: {"sat": {}, "signal": {}} for n in names}
+    codes = {n: new_codes() for n in names}
     thin = {n: [ThinTables(codes[n]) for _ in hours[n]] for n in names}
     infos: dict = {n: [[] for _ in hours[n]] for n in names}
     last: dict = {n: None for n in names}
@@ -191,8 +198,8 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, glonass_k: dict, say):
         del block, parts
         heap.trim()           # (the block's freed pages back to the system: its memory does not add up block by block)
     joins, join_warnings = {}, []
-    inp.receivers = {n: _receiver(cfg, inp, n, [h.path for h in hours[n]], infos[n], thin[n], l1_opt, joins,
-                                  join_warnings) for n in names}
+    inp.receivers = {n: _receiver(cfg, inp, n, hours[n], given[n], infos[n], thin[n], l1_opt, joins, join_warnings)
+                     for n in names}
     inp.joins = joins
     join_warnings = [w for n in inp.files for w in join_warnings if w[0] == n]
     inp.warnings[0:0] = [w for _, w in join_warnings] + [w for n, rx in inp.receivers.items()
@@ -226,36 +233,40 @@ def _read_block(cfg: GnssConfig, hours, j: int, l1_opt: bool, glonass_k: dict) -
     """(raw table, signal table or None, header summary) of block ``j`` of a file, read as a file of its own."""
     read = hours.block_bytes(j)
     info, obs = read_rinex_obs(hours.path, gps_l1_optional=l1_opt, read=read)
-    sig = read_rinex_signals(hours.path, cfg.signals, glonass_k, read=read)[1] if cfg.signals else None
+    sig = None
+    if cfg.signals:                  # an epoch's record written twice: its first (as the whole reading keeps)
+        sig = first_of_repeated_epochs(read_rinex_signals(hours.path, cfg.signals, glonass_k, read=read)[1])[0]
     return g._raw_from_rinex(obs), sig, info
 
 
-def _receiver(cfg: GnssConfig, inp, n: str, paths: list, infos: list, thin: list, l1_opt: bool, joins: dict,
-              join_warnings: list) -> g.GnssReceiver:
+def _receiver(cfg: GnssConfig, inp, n: str, cut: list, given: list, infos: list, thin: list, l1_opt: bool,
+              joins: dict, join_warnings: list) -> g.GnssReceiver:
     """The receiver of its files from their blocks: each file's header joined from its blocks', the thin tables;
-    several files joined as the whole reading joins them (:func:`~cdgps_cli.io.gnss_sequence.join_receivers`:
-    ``joins[n]`` and the warnings, as (n, text), appended); the whole reading's refusals (a file without GPS L1
-    phase, a signal missing)."""
+    several files joined as the whole reading joins them (:func:`~cdgps_cli.io.gnss_sequence.join_receivers` on the
+    files in the order and spelling given: ``joins[n]`` and the warnings, as (n, text), appended; NotCut unless its
+    order is the one the blocks were read in); the whole reading's refusals (a file without GPS L1 phase, a signal
+    missing)."""
     rxs = []
-    for p, inf, th in zip(paths, infos, thin):
+    for h, inf, th in zip(cut, infos, thin):
         if not inf:
             raise NotCut("a file without epochs")
-        header, info = g.rinex_header_info(p, join_obs_headers(inf))
+        header, info = g.rinex_header_info(h.path, join_obs_headers(inf))
         raw = th.frame("raw")
         heap.trim()                  # (the blocks' parts, joined, freed: their pages back to the system)
         if not l1_opt:
-            g.refuse_no_l1_phase(p, "rinex", header, raw)
-        rxs.append(g.GnssReceiver(n, "rinex", p.name, header, raw, info, None))
+            g.refuse_no_l1_phase(h.path, "rinex", header, raw)
+        rxs.append(g.GnssReceiver(n, "rinex", h.path.name, header, raw, info, None))
     if len(rxs) == 1:
         rx = rxs[0]
     else:
-        rx, joins[n], w, order = g.join_receivers(n, rxs, [str(p) for p in paths])
-        if order != list(range(len(rxs))):
-            raise NotCut("the files' order")
+        by_given = sorted(range(len(cut)), key=lambda i: cut[i].order)
+        rx, joins[n], w, order = g.join_receivers(n, [rxs[i] for i in by_given], given)
+        if [by_given[i] for i in order] != list(range(len(cut))):
+            raise NotCut("the files' order")           # (e.g. files without GPS rows: the whole reading keeps theirs)
         join_warnings.extend((n, x) for x in w)
     if cfg.signals:
         tabs = [th.frame("signals") for th in thin]
-        rx.signals = tabs[0] if len(tabs) == 1 else g.join_signal_tables(n, tabs, [str(p) for p in paths])
+        rx.signals = tabs[0] if len(tabs) == 1 else g.join_signal_tables(n, tabs, [given[h.order] for h in cut])
         heap.trim()
         g.refuse_absent_signals(cfg.signals, rx.signals, inp.files[n][1], n)
     return rx

@@ -46,7 +46,7 @@ class RinexHours:
     blocks: list
     block_s: float
     first_s: float
-    """GPS s of the first epoch line (as written: the file's time system is GPS)."""
+    """GPS s of the first epoch line (:func:`rinex_hours` takes only files whose epochs are in GPS time)."""
     last_s: float
     """GPS s of the last epoch line."""
     _map: mmap.mmap
@@ -58,11 +58,21 @@ class RinexHours:
         _, a, b, _ = self.blocks[j]
         data = self.head + self._map[a:b]
         a0 = a - a % mmap.PAGESIZE            # the file's pages read let go (not held as the process's memory)
-        self._map.madvise(mmap.MADV_DONTNEED, a0, b - a0)
+        _advise(self._map, "MADV_DONTNEED", a0, b - a0)
         return data, False
 
     def close(self) -> None:
         self._map.close()
+
+
+def _advise(m: mmap.mmap, what: str, *span) -> None:
+    """``m.madvise(mmap.<what>, *span)`` where the platform has it (a hint: memory, never results)."""
+    flag = getattr(mmap, what, None)
+    if flag is not None and hasattr(m, "madvise"):
+        try:
+            m.madvise(flag, *span)
+        except OSError:
+            pass
 
 
 def _epoch_time_s(line: bytes) -> float | None:
@@ -125,12 +135,12 @@ def rinex_hours(path: str | Path, block_s: float) -> RinexHours | None:
             if fh.read(4).startswith(_COMPRESSED_MAGIC) or p.stat().st_size < 200:
                 return None
             m = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-        m.madvise(mmap.MADV_RANDOM)          # (the bisection's probes: no read-ahead mapped around each)
+        _advise(m, "MADV_RANDOM")            # (the bisection's probes: no read-ahead mapped around each)
     except (OSError, ValueError):
         return None
     try:
         hours = _cut(p, m, block_s)
-        m.madvise(mmap.MADV_DONTNEED)        # the pages the probes touched let go (not held as the process's memory)
+        _advise(m, "MADV_DONTNEED")          # the pages the probes touched let go (not held as the process's memory)
         return hours
     except NotCut:
         m.close()
@@ -151,12 +161,14 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
     if nl < 0:
         raise NotCut("no END OF HEADER")
     head = m[:nl + 1]
-    system = _first_obs_time_system(head)
-    if system not in ("", "GPS"):
-        raise NotCut(f"epochs in {system} time")
+    system = _first_obs_time_system(head) or ("GPS" if first[40:41] in (b"G", b"M", b" ", b"") else "?")
+    if system != "GPS":
+        raise NotCut(f"epochs in {system} time")   # (a blank one is the file's system's: GPS for G and mixed files)
     lo, end = nl + 1, len(m)
+    if m[end - 1:end] != b"\n":
+        raise NotCut("no line end at the end")      # (a file cut short: the whole reading refuses it, naming the line)
     e0 = _epoch_at_or_after(m, lo, lo, end)
-    e1 = m.rfind(b"\n>", lo, end)
+    e1 = m.rfind(b"\n>", lo - 1, end)               # (lo − 1: the header's last line end, before a first epoch)
     t0 = _epoch_time_s(_line(m, e0, end)) if e0 < end else None
     t1 = _epoch_time_s(_line(m, e1 + 1, end)) if e1 >= 0 else None
     if t0 is None or t1 is None or t1 < t0:
@@ -171,7 +183,7 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
 
 
 def _first_obs_time_system(head: bytes) -> str:
-    """The time system of TIME OF FIRST OBS ('' when blank: GPS for a GPS file, as the readers take it)."""
+    """The time system of TIME OF FIRST OBS ('' when blank: the file's system's own, GPS for a GPS or mixed file)."""
     for line in head.split(b"\n"):
         if line[60:80].rstrip(b"\r").rstrip() == b"TIME OF FIRST OBS":
             return line[48:51].decode("latin-1").strip()

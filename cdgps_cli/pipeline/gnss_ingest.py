@@ -82,6 +82,8 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         inp, blocks, mapped = hourly
         try:
             return _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say)
+        except _ChecksRefused as exc:      # the checks the whole reading makes on the same tables: its error
+            raise exc.error from None
         except gnss_hours.NotCut as exc:
             say(f"reading the files whole ({exc}) …")
         except CdgpsError:                # (named by the whole reading: the file's own line, not a block's)
@@ -111,10 +113,13 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
     parts = {}
 
     def finish():
-        if inp.nav is not None:
-            _check_coverage(inp, cfg.signals)
-        pos_src = gnss_run.nominal_positions(cfg, inp)
-        common = _common_epochs(cfg, inp)
+        try:
+            if inp.nav is not None:
+                _check_coverage(inp, cfg.signals)
+            pos_src = gnss_run.nominal_positions(cfg, inp)
+            common = _common_epochs(cfg, inp)
+        except CdgpsError as exc:
+            raise _ChecksRefused(exc) from None
         lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
         att, _, parts["done"] = _sensor_parts(cfg, inp, sensor_paths)
         return pos_src, common, lock, att
@@ -123,6 +128,16 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
     names = [inp.master, *[n for n in inp.files if n != inp.master]]
     s = gnss_run.write_gnss_run_blocks(cfg, out_path, inp, names, blocks, finish, extra_inputs)
     return parts["done"](s)
+
+
+class _ChecksRefused(Exception):
+    """An ingest read block by block refused by the checks made on the whole record (ephemeris coverage, positions,
+    common epochs): the error the whole-file ingest gives too, after the same reading (``.error``), without reading
+    the files again."""
+
+    def __init__(self, error: CdgpsError):
+        super().__init__(str(error))
+        self.error = error
 
 
 def _sensors(cfg: GnssConfig, sensor_paths) -> list:

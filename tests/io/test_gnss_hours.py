@@ -39,6 +39,11 @@ def _ingest(cfg, out, whole: bool, monkeypatch, **kw) -> tuple[dict, list]:
     return s, said
 
 
+def _fell_back(said: list) -> bool:
+    """Whether the ingest went back to reading the files whole (its progress lines say so)."""
+    return any("reading the files whole" in m or "reading them whole" in m for m in said)
+
+
 def _same_run(cfg, tmp_path, monkeypatch, **kw) -> list:
     s_h, said = _ingest(cfg, tmp_path / "hours.mcap", False, monkeypatch, **kw)
     s_w, _ = _ingest(cfg, tmp_path / "whole.mcap", True, monkeypatch, **kw)
@@ -58,7 +63,7 @@ def sim(tmp_path_factory):
 
 def test_hour_by_hour_is_the_whole_file_ingest(sim, tmp_path, monkeypatch, minute_blocks):
     said = _same_run(load_gnss_config(sim / "config.toml"), tmp_path, monkeypatch)
-    assert any("hour by hour" in m for m in said) and not any("reading the files whole" in m for m in said)
+    assert any("hour by hour" in m for m in said) and not _fell_back(said)
     idx = __import__("json").loads(__import__("cdgps_cli.io.mcap", fromlist=["x"]).read_mcap(
         tmp_path / "hours.mcap").attachment("gnss/obs/1/blocks.json"))
     assert len(idx["blocks"]) >= 6                   # 330 s in blocks of a minute
@@ -198,3 +203,68 @@ def test_consecutive_files_hour_by_hour(sim, tmp_path, monkeypatch, minute_block
     said = _same_run(cfg, tmp_path, monkeypatch, rinex={"base": base, "rover": rover + over[:1]},
                      nav_paths=[d / "nav.rnx"])
     assert any("reading the files whole" in m for m in said) or not any("hour by hour" in m for m in said)
+
+
+def test_a_file_cut_in_a_value_is_refused_as_whole(sim, tmp_path, monkeypatch, minute_blocks):
+    d = _copy_sim(sim, tmp_path / "cut")
+    text = (sim / "rover.rnx").read_text()
+    (d / "rover.rnx").write_text(text[:text.rstrip("\n").rfind("\n") + 12])      # the last line cut in its first value
+    cfg = load_gnss_config(d / "config.toml")
+    errors = []
+    for whole in (False, True):
+        with pytest.raises(CdgpsError, match="ends inside a value") as e:
+            _ingest(cfg, tmp_path / f"cut-{whole}.mcap", whole, monkeypatch)
+        errors.append(str(e.value))
+    assert errors[0] == errors[1] and not list(tmp_path.glob("cut-*.mcap"))
+
+
+def test_the_checks_on_the_whole_record_refuse_without_reading_again(sim, tmp_path, monkeypatch, minute_blocks):
+    """A navigation file of another day: refused by the same check on the thin tables, with the whole reading's
+    message, and the files are not read whole for it."""
+    d = _copy_sim(sim, tmp_path / "day")
+    shutil.copy(sim / "rover.rnx", d / "rover.rnx")
+    nav = (sim / "nav.rnx").read_text().splitlines(keepends=True)
+    (d / "nav.rnx").write_text("".join(ln[:4] + str(int(ln[4:8]) + 1) + ln[8:] if ln[:1] == "G" and ln[4:8].isdigit()
+                                       else ln for ln in nav))                 # every ephemeris a year later
+    cfg = load_gnss_config(d / "config.toml")
+    out = []
+    for whole in (False, True):
+        said = []
+        with monkeypatch.context() as m:
+            if whole:
+                m.setattr(gnss_hours, "hourly_inputs", lambda *a, **k: None)
+            with pytest.raises(CdgpsError, match="do not cover") as e:
+                gnss_ingest.ingest_gnss(cfg, tmp_path / f"day-{whole}.mcap", progress=said.append)
+        out.append((str(e.value), said))
+    assert out[0][0] == out[1][0]
+    assert any("hour by hour" in m for m in out[0][1]) and not _fell_back(out[0][1])
+
+
+def test_one_epoch_files_and_files_of_one_name(sim, tmp_path, monkeypatch, minute_blocks):
+    """A file of one epoch is cut too; files of one name in two folders are named as given."""
+    d = _copy_sim(sim, tmp_path / "one")
+    (d / "a").mkdir(), (d / "b").mkdir()
+    pieces = _split(sim / "rover.rnx", d, [1, 300])[::-1]                        # the first holds one epoch
+    names = [d / "a" / "rover.rnx", d / "b" / "rover.rnx", d / "rover_2.rnx"]
+    for p, q in zip(pieces, names):
+        p.replace(q)
+    rover = [f"./{q.relative_to(tmp_path)}" for q in names]
+    monkeypatch.chdir(tmp_path)
+    cfg = load_gnss_config(d / "config.toml")
+    said = _same_run(cfg, tmp_path, monkeypatch, rinex={"base": d / "base.rnx", "rover": rover},
+                     nav_paths=[d / "nav.rnx"])
+    assert any("hour by hour" in m for m in said) and not _fell_back(said)
+
+
+def test_a_satellite_written_twice_in_an_epoch_with_signals(sim, tmp_path, monkeypatch, minute_blocks):
+    """The signal table keeps a (time, satellite, signal) once, the first record, hour by hour as whole."""
+    d = _copy_sim(sim, tmp_path / "twice")
+    text = (sim / "rover.rnx").read_text()
+    at = text.index("\n", text.index("END OF HEADER")) + 1
+    recs = [">" + r for r in text[at:].split(">")[1:]]
+    lines = recs[150].splitlines(keepends=True)
+    recs[150] = lines[0][:32] + f"{len(lines):3d}" + lines[0][35:] + "".join(lines[1:]) + lines[3]
+    (d / "rover.rnx").write_text(text[:at] + "".join(recs))
+    cfg = parse_gnss_config((d / "config.toml").read_text().replace("[gnss]\n", '[gnss]\nsignals = ["G:L1"]\n', 1),
+                            str(d / "config.toml"), base_dir=d)
+    assert any("hour by hour" in m for m in _same_run(cfg, tmp_path, monkeypatch))
