@@ -524,7 +524,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
         above &= m["eph_row_b"].to_numpy() == m["eph_row_r"].to_numpy()
     if mask_rover:
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
-    m = _kept_sorted(m, above, ["_ep", "signal", "_row_b", "_row_r"])
+    m = _kept_sorted(m, above, ["_ep", "signal", "_row_b", "_row_r"], drop=_UNUSED_AFTER_SORT)
     m, age, n_interpolated = _base_at_rover_times(m, b, tb, pairs, opt, base_xyz_m)
     del b                                       # (the base's copy: its rows are in ``m`` now)
     names, code = _sorted_codes(m["signal"].to_numpy())
@@ -559,9 +559,14 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     }
 
 
-def _kept_sorted(m: pd.DataFrame, keep: np.ndarray, by: list) -> pd.DataFrame:
-    """``m[keep].sort_values(by, kind="stable")`` (the same rows, order, index and dtypes) with one copy of the rows
-    kept instead of two: the order is found on the ``by`` columns alone, then the rows are taken once.
+#: the merged rows' columns :func:`paired_sd_rows` reads no more once they are sorted (not copied with the rows kept)
+_UNUSED_AFTER_SORT = ("time_gps_s_b", "time_gps_s_r", "_row_b", "_row_r", "_el_r", "eph_row_r")
+
+
+def _kept_sorted(m: pd.DataFrame, keep: np.ndarray, by: list, drop=()) -> pd.DataFrame:
+    """``m[keep].sort_values(by, kind="stable").drop(columns=…)`` (the same rows, order, index and dtypes) with one
+    copy of the rows kept instead of two: the order is found on the ``by`` columns alone, then the rows are taken
+    once, without the columns ``drop`` names (those ``m`` has).
 
     Parameters
     ----------
@@ -571,10 +576,13 @@ def _kept_sorted(m: pd.DataFrame, keep: np.ndarray, by: list) -> pd.DataFrame:
         The rows to keep.
     by : list of str
         The columns to sort on, first key first.
+    drop : sequence of str
+        Columns left out of the result.
     """
     at = np.flatnonzero(keep)
     order = m[by].take(at).reset_index(drop=True).sort_values(by, kind="stable").index.to_numpy()
-    return m.take(at[order])
+    cols = [k for k, c in enumerate(m.columns) if c not in drop]
+    return m.iloc[at[order], cols]
 
 
 def _rows_at_starts(starts, names, sat, epoch, t_label, step: float) -> np.ndarray:
