@@ -563,6 +563,7 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
     om = om[np.isfinite(om["phase_l1_cycles"].to_numpy())]
     orv = orv[np.isfinite(orv["phase_l1_cycles"].to_numpy())]
     j = pd.merge(orv, om, on=["ep", "sat"], suffixes=("_r", "_b"), how="inner", sort=True)
+    del om, orv                     # (each receiver's rows: in ``j`` now, not held beside its geometry and SD rows)
     if len(j) == 0:
         raise CdgpsError(f"no common satellites: no satellite has L1 phase at both {_where(master)} and {_where(rover)} "
                          f"in any of the {n_ep} common epochs")

@@ -516,6 +516,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     r = r[ep_r >= 0]
     r = r.assign(_bep=pairs.base_index[r["_ep"].to_numpy()])
     m = b.merge(r, on=["_bep", "sat", "signal"], suffixes=("_b", "_r"))
+    del r                                       # (the rover's copy, as large as the base's: not held to the end)
     above = m["el_rad"].to_numpy() >= np.radians(opt["mask_deg"])
     if "eph_row_b" in m.columns and "eph_row_r" in m.columns:
         # one single difference, one ephemeris: a bridged base epoch on the other side of a change of broadcast
@@ -523,9 +524,9 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
         above &= m["eph_row_b"].to_numpy() == m["eph_row_r"].to_numpy()
     if mask_rover:
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
-    m = m[above]
-    m = m.sort_values(["_ep", "signal", "_row_b", "_row_r"], kind="stable")
+    m = _kept_sorted(m, above, ["_ep", "signal", "_row_b", "_row_r"], drop=_UNUSED_AFTER_SORT)
     m, age, n_interpolated = _base_at_rover_times(m, b, tb, pairs, opt, base_xyz_m)
+    del b                                       # (the base's copy: its rows are in ``m`` now)
     names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
     lam = m["wavelength_m"].to_numpy(dtype=float)
@@ -556,6 +557,32 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
                     * opt.get("code_variance_factor", 1.0)
                     * glonass_code_factor(m["sat"].to_numpy(), bool(opt.get("glonass_fix", False))) + var_age,
     }
+
+
+#: the merged rows' columns :func:`paired_sd_rows` reads no more once they are sorted (not copied with the rows kept)
+_UNUSED_AFTER_SORT = ("time_gps_s_b", "time_gps_s_r", "_row_b", "_row_r", "_el_r", "eph_row_r")
+
+
+def _kept_sorted(m: pd.DataFrame, keep: np.ndarray, by: list, drop=()) -> pd.DataFrame:
+    """``m[keep].sort_values(by, kind="stable").drop(columns=…)`` (the same rows, order, index and dtypes) with one
+    copy of the rows kept instead of two: the order is found on the ``by`` columns alone, then the rows are taken
+    once, without the columns ``drop`` names (those ``m`` has).
+
+    Parameters
+    ----------
+    m : DataFrame
+        The table (N rows).
+    keep : ndarray of bool (N,)
+        The rows to keep.
+    by : list of str
+        The columns to sort on, first key first.
+    drop : sequence of str
+        Columns left out of the result.
+    """
+    at = np.flatnonzero(keep)
+    order = m[by].take(at).reset_index(drop=True).sort_values(by, kind="stable").index.to_numpy()
+    cols = [k for k, c in enumerate(m.columns) if c not in drop]
+    return m.iloc[at[order], cols]
 
 
 def _rows_at_starts(starts, names, sat, epoch, t_label, step: float) -> np.ndarray:
