@@ -35,7 +35,7 @@ class NotCut(Exception):
 
 @dataclass
 class RinexHours:
-    """A plain RINEX 3 observation file mapped, cut into blocks of GPS time.
+    """A plain RINEX 3 observation file cut into blocks of GPS time.
 
     ``head``: the header's bytes (through END OF HEADER's line); ``blocks``: [(block number k, first byte, end
     byte, its first epoch's GPS s)] of the body, in file order, each holding the epochs with
@@ -49,20 +49,22 @@ class RinexHours:
     """GPS s of the first epoch line (:func:`rinex_hours` takes only files whose epochs are in GPS time)."""
     last_s: float
     """GPS s of the last epoch line."""
-    _map: mmap.mmap
     order: int = 0
     """The file's place in the list it was given in (a record of several files, :mod:`cdgps_cli.io.gnss_hours`)."""
 
     def block_bytes(self, j: int) -> tuple[bytes, bool]:
-        """The ``read=`` argument of the readers for block ``j``: the header and that block's records."""
+        """The ``read=`` argument of the readers for block ``j``: the header and that block's records (read from
+        the file, not through a mapping: sequential reads, and no mapped pages left in the process)."""
         _, a, b, _ = self.blocks[j]
-        data = self.head + self._map[a:b]
-        a0 = a - a % mmap.PAGESIZE            # the file's pages read let go (not held as the process's memory)
-        _advise(self._map, "MADV_DONTNEED", a0, b - a0)
-        return data, False
+        with open(self.path, "rb") as fh:
+            fh.seek(a)
+            body = fh.read(b - a)
+        if len(body) != b - a:
+            raise NotCut("the file changed")
+        return self.head + body, False
 
     def close(self) -> None:
-        self._map.close()
+        """(Nothing is held open between blocks: kept for the callers' symmetry.)"""
 
 
 def _advise(m: mmap.mmap, what: str, *span) -> None:
@@ -139,12 +141,11 @@ def rinex_hours(path: str | Path, block_s: float) -> RinexHours | None:
     except (OSError, ValueError):
         return None
     try:
-        hours = _cut(p, m, block_s)
-        _advise(m, "MADV_DONTNEED")          # the pages the probes touched let go (not held as the process's memory)
-        return hours
+        return _cut(p, m, block_s)
     except NotCut:
-        m.close()
         return None
+    finally:
+        m.close()                            # (the probes' pages with it)
 
 
 def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
@@ -179,7 +180,7 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
               if b > a]
     if e0 > lo or any(t is None for *_, t in blocks):
         raise NotCut("the body does not begin with an epoch line")
-    return RinexHours(p, bytes(head), blocks, block_s, t0, t1, m)
+    return RinexHours(p, bytes(head), blocks, block_s, t0, t1)
 
 
 def _first_obs_time_system(head: bytes) -> str:
