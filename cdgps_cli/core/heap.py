@@ -10,7 +10,8 @@ from __future__ import annotations
 import functools
 import sys
 
-__all__ = ["M_TRIM_THRESHOLD", "M_MMAP_THRESHOLD", "available", "trim", "set_option"]
+__all__ = ["M_TRIM_THRESHOLD", "M_MMAP_THRESHOLD", "MMAP_THRESHOLD_BYTES", "available", "trim", "set_option",
+           "map_large_blocks"]
 
 #: ``mallopt`` parameter numbers (malloc.h)
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
@@ -54,3 +55,17 @@ def set_option(param: int, value: int) -> bool:
     """``mallopt(param, value)`` for the rest of the process. True when glibc accepted it."""
     fn = _glibc("mallopt")
     return fn is not None and bool(fn(int(param), int(value)))
+
+
+#: blocks at least this large are mapped on their own and unmapped when freed, bytes (glibc's default
+#: starting value; fixed, so that glibc does not raise it as large blocks are freed)
+MMAP_THRESHOLD_BYTES = 128 * 1024
+
+
+def map_large_blocks(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
+    """Fix glibc's mmap threshold at ``threshold_bytes`` for the rest of the process (:func:`set_option`; elsewhere
+    nothing).  glibc otherwise raises the threshold to the size of each mapped block freed, so after the first large
+    arrays every array of the record's size comes from the heap, whose freed pages stay in RSS between steps (issue
+    29); fixed, each array at least that large is its own mapping, returned to the system when freed.  Arithmetic
+    unchanged.  True when the call was made."""
+    return set_option(M_MMAP_THRESHOLD, threshold_bytes)

@@ -72,19 +72,9 @@ def release_freed_heap() -> bool:
     return heap.trim()
 
 
-#: blocks at least this large are mapped on their own and unmapped when freed, bytes (glibc's default
-#: starting value; fixed, so that glibc does not raise it as large blocks are freed)
-MMAP_THRESHOLD_BYTES = 128 * 1024
-
-
-def map_large_blocks(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
-    """Fix glibc's mmap threshold at ``threshold_bytes`` for the rest of the process (``mallopt``,
-    :func:`cdgps_cli.core.heap.set_option`; elsewhere nothing).  glibc otherwise raises the threshold to
-    the size of each mapped block freed, so after the first large arrays every array of the record's size
-    comes from the heap, whose freed pages stay in RSS between the set-up's steps (issue 29); fixed, each
-    array at least that large is its own mapping, returned to the system when freed.  Arithmetic
-    unchanged.  True when the call was made."""
-    return heap.set_option(heap.M_MMAP_THRESHOLD, threshold_bytes)
+MMAP_THRESHOLD_BYTES = heap.MMAP_THRESHOLD_BYTES
+map_large_blocks = heap.map_large_blocks
+"""(:func:`cdgps_cli.core.heap.map_large_blocks`, where it lives: the fused run's set-up calls it.)"""
 
 
 def common_time_axis(t_gnss, sensor_times, tol_s: float = SYNC_TOL_S) -> np.ndarray:

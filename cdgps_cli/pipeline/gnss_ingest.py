@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.config.structure import GnssConfig
+from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import gnss_hours, gnss_run
 from cdgps_cli.core.gps_time import nominal_interval_s
@@ -106,9 +107,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
 def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, say) -> dict:
     """:func:`ingest_gnss` of receivers read block by block (:func:`cdgps_cli.io.gnss_hours.hourly_inputs`): the
     observations written as they are read, the checks made on the thin tables once the last block is in."""
-    from cdgps_cli.pipeline.fusion import map_large_blocks  # noqa: PLC0415
-
-    map_large_blocks(1 << 20)              # each block's arrays unmapped when freed: the blocks' memory does not pile up
+    heap.map_large_blocks(1 << 20)         # each block's arrays unmapped when freed: the blocks' memory does not pile up
     extra_inputs = {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(_sensors(cfg, sensor_paths))}
     parts = {}
 
