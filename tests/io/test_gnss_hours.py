@@ -268,3 +268,18 @@ def test_a_satellite_written_twice_in_an_epoch_with_signals(sim, tmp_path, monke
     cfg = parse_gnss_config((d / "config.toml").read_text().replace("[gnss]\n", '[gnss]\nsignals = ["G:L1"]\n', 1),
                             str(d / "config.toml"), base_dir=d)
     assert any("hour by hour" in m for m in _same_run(cfg, tmp_path, monkeypatch))
+
+
+def test_a_record_across_a_day_and_a_gps_week(tmp_path, monkeypatch):
+    """A record from Saturday 23:30 to Sunday 00:30 GPST (a new day and a new GPS week at midnight), in hour blocks:
+    the same RUN hour by hour as whole, its blocks named by the hours of both days."""
+    d = tmp_path / "week"
+    assert run_cli("-q", "simulate-gnss", "--duration", "3600", "--rate-hz", "0.2", "--seed", "4",
+                   "--start", "2024-01-06T23:30:00", "-o", d).exit_code == 0
+    said = _same_run(load_gnss_config(d / "config.toml"), tmp_path, monkeypatch)
+    assert any("hour by hour" in m for m in said) and not _fell_back(said)
+    from cdgps_cli.io.mcap import read_mcap  # noqa: PLC0415
+    import json  # noqa: PLC0415
+
+    blocks = json.loads(read_mcap(tmp_path / "hours.mcap").attachment("gnss/obs/1/blocks.json"))["blocks"]
+    assert [b["name"].split("_", 1)[1] for b in blocks] == ["2024-01-06T23h.npz.zst", "2024-01-07T00h.npz.zst"]
