@@ -89,27 +89,30 @@ def new_codes() -> dict:
 
 
 def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: dict | None = None, nav_paths=None,
-                  master: str | None = None, progress=None):
+                  master: str | None = None, progress=None, why: list | None = None):
     """(:class:`~cdgps_cli.io.gnss_run.IngestInputs`, the blocks' generator, the mapped files) of an ingest whose
     receivers are each plain RINEX 3 files — one, or consecutive files of one record that do not overlap (the
     parameters of :func:`cdgps_cli.pipeline.gnss_ingest.ingest_gnss`); None for any other ingest, or any error (the
-    whole-file ingest then reads the files, and names it).  ``inputs.receivers`` is filled as the generator ends;
-    close the mapped files (``.close()``) when done."""
+    whole-file ingest then reads the files, and names it; ``why``, if given, gets the reason).  ``inputs.receivers``
+    is filled as the generator ends; close the mapped files (``.close()``) when done."""
     say = progress or (lambda m: None)
+    why = [] if why is None else why
     try:
         files, pieces = g._ingest_files(cfg, rinex, ubx)
         master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
         if not master or master not in files or any(k != "rinex" for k, _ in files.values()):
+            why.append("UBX logs are read whole" if any(k != "rinex" for k, _ in files.values()) else "no master")
             return None
         nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
             expand_paths([str(p) for p in nav_paths], "--nav")
         g._refuse_overwriting_an_input(Path(out_path), pieces, nav_list)
     except g.CdgpsError:
+        why.append("an error in the inputs, named by the whole reading")
         return None
     hours = _Closer({})
     given = {n: list(ps) for n, ps in pieces.items()}
     for n in [master, *[n for n in files if n != master]]:
-        cut = _cut_record(pieces[n])
+        cut = _cut_record(pieces[n], why)
         if cut is None:
             hours.close()
             return None
@@ -123,19 +126,20 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
         nav, nav_source = g._ingest_nav(cfg, nav_list, nav_ahead, {}, files, pieces, master, say, warnings)
     except g.CdgpsError:
         hours.close()
+        why.append("an error in the navigation files, named by the whole reading")
         return None
     inp = g.IngestInputs(files, master, nav_list, {}, nav, {}, warnings, nav_source, pieces, None)
     n = len({k for cut in hours.hours.values() for h in cut for k, *_ in h.blocks})
     return inp, g.Blocks(_blocks(cfg, inp, hours.hours, given, glonass_k, say), n), hours
 
 
-def _cut_record(paths: list) -> list | None:
+def _cut_record(paths: list, why: list) -> list | None:
     """The files of a receiver cut into blocks (:func:`~cdgps_cli.io.rinex_hours.rinex_hours`), in time order; None
-    (the files read whole) when one cannot be cut or two overlap (the whole reading joins them, an epoch repeated
-    kept from the earlier file)."""
+    (the files read whole; the reason appended to ``why``) when one cannot be cut or two overlap (the whole reading
+    joins them, an epoch repeated kept from the earlier file)."""
     cut = []
     for i, p in enumerate(paths):
-        h = rinex_hours(p, gnss_archive.OBS_BLOCK_S)
+        h = rinex_hours(p, gnss_archive.OBS_BLOCK_S, why)
         if h is None:
             for x in cut:
                 x.close()
@@ -146,6 +150,7 @@ def _cut_record(paths: list) -> list | None:
     if any(b.first_s <= a.last_s for a, b in zip(cut, cut[1:])):
         for x in cut:
             x.close()
+        why.append(f"{Path(cut[0].path).name} …: files that overlap")
         return None
     return cut
 

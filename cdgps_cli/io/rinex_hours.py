@@ -127,23 +127,32 @@ def _first_epoch_from(m: mmap.mmap, t_s: float, lo: int, end: int) -> int:
     return end
 
 
-def rinex_hours(path: str | Path, block_s: float) -> RinexHours | None:
+def rinex_hours(path: str | Path, block_s: float, why: list | None = None) -> RinexHours | None:
     """The file cut into blocks of ``block_s`` seconds of GPS time, or None when it is not a plain RINEX 3
-    observation file with its epochs in GPS time (it is then read whole).  Opening errors are the readers' own
-    (None: the whole reading names them)."""
+    observation file with its epochs in GPS time (it is then read whole; ``why``, if given, gets the reason, e.g.
+    "rover.obs.gz: compressed").  Opening errors are the readers' own (None: the whole reading names them)."""
     p = Path(path)
     try:
+        return _cut_file(p, block_s)
+    except NotCut as exc:
+        if why is not None:
+            why.append(f"{p.name}: {exc}")
+        return None
+
+
+def _cut_file(p: Path, block_s: float) -> RinexHours:
+    try:
         with open(p, "rb") as fh:
-            if fh.read(4).startswith(_COMPRESSED_MAGIC) or p.stat().st_size < 200:
-                return None
+            if fh.read(4).startswith(_COMPRESSED_MAGIC):
+                raise NotCut("compressed")
+            if p.stat().st_size < 200:
+                raise NotCut("too short to cut")
             m = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
         _advise(m, "MADV_RANDOM")            # (the bisection's probes: no read-ahead mapped around each)
     except (OSError, ValueError):
-        return None
+        raise NotCut("cannot be mapped") from None
     try:
         return _cut(p, m, block_s)
-    except NotCut:
-        return None
     finally:
         m.close()                            # (the probes' pages with it)
 

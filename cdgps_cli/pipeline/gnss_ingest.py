@@ -67,7 +67,9 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     -------
     dict
         Summary (receivers, epochs, spans, common epochs, slips, ephemerides, warnings, and
-        ``integrity``: per UBX receiver its file, counters and the worded losses, ``problems``).
+        ``integrity``: per UBX receiver its file, counters and the worded losses, ``problems``; ``reading``: whether
+        the files were read hour by hour (:mod:`cdgps_cli.io.gnss_hours`: ``hour_by_hour``, ``blocks``) or whole, and
+        why (``why_whole``, e.g. "rover.obs.gz: compressed")).
 
     Raises
     ------
@@ -77,17 +79,22 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         position while there are rovers, an output that would overwrite an input.
     """
     say = progress or (lambda m: None)
+    why: list[str] = []
     hourly = gnss_hours.hourly_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
-                                      progress=progress)
+                                      progress=progress, why=why)
     if hourly is not None:
         inp, blocks, mapped = hourly
         try:
-            return _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say)
+            s = _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say)
+            s["reading"] = {"hour_by_hour": True, "blocks": len(blocks), "why_whole": None}
+            return s
         except _ChecksRefused as exc:      # the checks the whole reading makes on the same tables: its error
             raise exc.error from None
         except gnss_hours.NotCut as exc:
+            why.append(str(exc))
             say(f"reading the files whole ({exc}) …")
         except CdgpsError:                # (named by the whole reading: the file's own line, not a block's)
+            why.append("an error in a block, named by the whole reading")
             say("an error in a block of the files: reading them whole, which names it …")
         finally:
             mapped.close()
@@ -100,8 +107,10 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
     att, extra_inputs, done = _sensor_parts(cfg, inp, sensor_paths)
-    return done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
-                                        extra_inputs=extra_inputs))
+    s = done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
+                                     extra_inputs=extra_inputs))
+    s["reading"] = {"hour_by_hour": False, "blocks": None, "why_whole": "; ".join(why) or None}
+    return s
 
 
 def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, say) -> dict:

@@ -49,6 +49,10 @@ def _same_run(cfg, tmp_path, monkeypatch, **kw) -> list:
     s_w, _ = _ingest(cfg, tmp_path / "whole.mcap", True, monkeypatch, **kw)
     assert (tmp_path / "hours.mcap").read_bytes() == (tmp_path / "whole.mcap").read_bytes()
     s_h.pop("output"), s_w.pop("output")
+    how = s_h.pop("reading")
+    assert how["hour_by_hour"] == any("hour by hour" in m for m in said) and not _fell_back(said) or \
+        not how["hour_by_hour"] and how["why_whole"]                  # (the summary says how, and why whole)
+    assert not s_w.pop("reading")["hour_by_hour"]
     assert s_h == s_w
     return said
 
@@ -133,6 +137,10 @@ def test_files_the_blocks_cannot_give_are_read_whole(sim, tmp_path, monkeypatch,
     assert rinex_hours(z / "rover.rnx", BLOCK_S) is None
     said = _same_run(load_gnss_config(z / "config.toml"), tmp_path, monkeypatch)
     assert not any("hour by hour" in m for m in said)
+    s, _ = _ingest(load_gnss_config(z / "config.toml"), tmp_path / "gz.mcap", False, monkeypatch)
+    assert s["reading"] == {"hour_by_hour": False, "blocks": None, "why_whole": "rover.rnx: compressed"}
+    s, _ = _ingest(load_gnss_config(sim / "config.toml"), tmp_path / "sim.mcap", False, monkeypatch)
+    assert s["reading"] == {"hour_by_hour": True, "blocks": 6, "why_whole": None}
 
 
 def test_an_error_in_a_late_block_is_the_whole_file_error(sim, tmp_path, monkeypatch, minute_blocks):
