@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from long_records import _timed, machine, write_json  # noqa: E402  (benchmarks/long_records.py)
+from long_records import _timed, machine, simulated_pair, write_json  # noqa: E402  (benchmarks/long_records.py)
 
 
 def _say(hours: float, what: str, r: dict) -> None:
@@ -57,12 +57,7 @@ def _hourly_files(d: Path) -> Path:
 
 def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: bool = True,
          hourly_files: bool = False) -> dict:
-    d = workdir / f"gnss10-{hours:g}h"
-    if not (d / "config.toml").exists():
-        r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "10", "--slips", "30",
-                    "--seed", "1", "-o", str(d)])
-        if r["exit"]:
-            raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
+    d = simulated_pair(workdir / f"gnss10-{hours:g}h", hours, 10.0)
     rec: dict = {"hours": hours, "rate_hz": 10.0, "window_s": window_s, "stages": {}, "windows": []}
     steps = [("ingest", ["ingest", "--config", "config.toml", "-o", "run.mcap"]),
              ("info", ["info", "--json", "run.mcap"])]

@@ -140,17 +140,23 @@ def _gnss_args(stage: str, d: Path) -> list[str]:
             "estimate": ["estimate", "run.mcap", "--init", "init.json", "-o", "states.mcap"]}[stage]
 
 
+def simulated_pair(d: Path, hours: float, rate_hz: float) -> Path:
+    """``d``, holding ``cdgps simulate-gnss --duration 3600·hours --rate-hz RATE --slips 30 --seed 1`` (made once,
+    then reused)."""
+    if not (d / "config.toml").exists():
+        r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", f"{rate_hz:g}", "--slips",
+                    "30", "--seed", "1", "-o", str(d)])
+        if r["exit"]:
+            raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
+    return d
+
+
 def gnss_pair(workdir: Path, hours: float, before: Path | None = None, rounds: int = 1) -> dict:
     """The GNSS row: a simulated static pair at 1 Hz through ingest, init and estimate, each its own
     process.  With ``before`` (a source tree of the earlier code, e.g. ``git archive <commit>``), each
     stage of that tree runs right before the same stage of this one (``rounds`` times, interleaved),
     in its own output directory; the outputs of the two are compared byte for byte."""
-    d = workdir / f"gnss-{hours:g}h"
-    if not (d / "config.toml").exists():
-        r = _timed(["simulate-gnss", "--duration", str(int(3600 * hours)), "--rate-hz", "1", "--slips", "30",
-                    "--seed", "1", "-o", str(d)])
-        if r["exit"]:
-            raise SystemExit(f"simulate-gnss {hours} h failed: {r.get('stderr')}")
+    d = simulated_pair(workdir / f"gnss-{hours:g}h", hours, 1.0)
     trees = ([("before", before)] if before else []) + [("after", ROOT)]
     runs = {name: {s: [] for s in GNSS_STAGES} for name, _ in trees}
     for _ in range(rounds):

@@ -129,8 +129,8 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
         why.append("an error in the navigation files, named by the whole reading")
         return None
     inp = g.IngestInputs(files, master, nav_list, {}, nav, {}, warnings, nav_source, pieces, None)
-    n = len({k for cut in hours.hours.values() for h in cut for k, *_ in h.blocks})
-    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, given, glonass_k, say), n), hours
+    keys = sorted({k for cut in hours.hours.values() for h in cut for k, *_ in h.blocks})
+    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, keys, given, glonass_k, say), len(keys)), hours
 
 
 def _cut_record(paths: list, why: list) -> list | None:
@@ -170,11 +170,12 @@ def _empty_tables(signals) -> tuple:
     return raw, (pd.DataFrame({c: np.zeros(0) for c in SIGNAL_COLUMNS}) if signals else None)
 
 
-def _blocks(cfg: GnssConfig, inp, hours: dict, given: dict, glonass_k: dict, say):
+def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_k: dict, say):
     """For each block of GPS time: [(raw rows, signal rows or None)] per receiver (master first; a receiver's
     files' rows in that block joined); at the end the receivers (thin tables, the whole reading's header and
     joins) in ``inp.receivers`` and ``inp.joins``, the reading's warnings first in ``inp.warnings``.  NotCut or
-    CdgpsError: the whole-file ingest must read them.  ``given``: each receiver's files as given (their order and
+    CdgpsError: the whole-file ingest must read them.  ``keys``: the block numbers, in time order; ``given``: each
+    receiver's files as given (their order and
     spelling: the whole reading's joins name them so)."""
     l1_opt = anchor_signal(cfg.signals) is not None
     names = list(hours)
@@ -183,7 +184,6 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, given: dict, glonass_k: dict, say
         for f, h in enumerate(cut):
             for j, (k, *_) in enumerate(h.blocks):
                 index[n].setdefault(k, []).append((f, j))
-    keys = sorted({k for ix in index.values() for k in ix})
     codes = {n: new_codes() for n in names}
     thin = {n: [ThinTables(codes[n]) for _ in hours[n]] for n in names}
     infos: dict = {n: [[] for _ in hours[n]] for n in names}

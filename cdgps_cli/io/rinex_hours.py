@@ -21,12 +21,11 @@ import mmap
 from dataclasses import dataclass
 from pathlib import Path
 
-from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.io.rinex import COMPRESSED_MAGIC, _ObsHeader, _parse_version_line, _split_lines, epoch_time_system
+from cdgps_cli.io.rinex_signals import _epoch_time
 
 __all__ = ["RinexHours", "rinex_hours", "join_obs_headers", "check_block", "NotCut"]
-
-_COMPRESSED_MAGIC = (b"\x1f\x8b", b"\x1f\x9d", b"BZh", b"PK\x03\x04")
-
 
 class NotCut(Exception):
     """A file (or one of its blocks) that cannot be read block by block exactly as whole (the reason): it is read
@@ -78,11 +77,11 @@ def _advise(m: mmap.mmap, what: str, *span) -> None:
 
 
 def _epoch_time_s(line: bytes) -> float | None:
-    """GPS s of a RINEX 3 epoch line (``> 2024 01 01 00 00  0.0000000  0 17``), None when it is not one."""
+    """GPS s of a RINEX 3 epoch line (``> 2024 01 01 00 00  0.0000000  0 17``) as the readers compute it
+    (:func:`cdgps_cli.io.rinex_signals._epoch_time`), None when it is not one."""
     try:
-        return gps_seconds(int(line[2:6]), int(line[7:9]), int(line[10:12]), int(line[13:15]), int(line[16:18]),
-                           float(line[18:29]))
-    except (ValueError, IndexError):
+        return _epoch_time(line.decode("latin-1"), 2, "", 0)
+    except CdgpsError:
         return None
 
 
@@ -143,7 +142,7 @@ def rinex_hours(path: str | Path, block_s: float, why: list | None = None) -> Ri
 def _cut_file(p: Path, block_s: float) -> RinexHours:
     try:
         with open(p, "rb") as fh:
-            if fh.read(4).startswith(_COMPRESSED_MAGIC):
+            if fh.read(4).startswith(COMPRESSED_MAGIC):
                 raise NotCut("compressed")
             if p.stat().st_size < 200:
                 raise NotCut("too short to cut")
@@ -158,22 +157,14 @@ def _cut_file(p: Path, block_s: float) -> RinexHours:
 
 
 def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
-    first = _line(m, 0, min(len(m), 400)).lstrip(b"\xef\xbb\xbf")
-    if first[60:80].rstrip() != b"RINEX VERSION / TYPE" or first[20:21] not in (b"O", b"o"):
-        raise NotCut("not a RINEX observation file")
-    try:
-        if float(first[:9]) < 3:
-            raise NotCut("RINEX 2")
-    except ValueError:
-        raise NotCut("version") from None
     at = m.find(b"END OF HEADER")
     nl = m.find(b"\n", at) if at >= 0 else -1
     if nl < 0:
         raise NotCut("no END OF HEADER")
     head = m[:nl + 1]
-    system = _first_obs_time_system(head) or ("GPS" if first[40:41] in (b"G", b"M", b" ", b"") else "?")
+    system = _epoch_time_system(p, head)
     if system != "GPS":
-        raise NotCut(f"epochs in {system} time")   # (a blank one is the file's system's: GPS for G and mixed files)
+        raise NotCut(f"epochs in {system} time")
     lo, end = nl + 1, len(m)
     if m[end - 1:end] != b"\n":
         raise NotCut("no line end at the end")      # (a file cut short: the whole reading refuses it, naming the line)
@@ -192,12 +183,21 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
     return RinexHours(p, bytes(head), blocks, block_s, t0, t1)
 
 
-def _first_obs_time_system(head: bytes) -> str:
-    """The time system of TIME OF FIRST OBS ('' when blank: the file's system's own, GPS for a GPS or mixed file)."""
-    for line in head.split(b"\n"):
-        if line[60:80].rstrip(b"\r").rstrip() == b"TIME OF FIRST OBS":
-            return line[48:51].decode("latin-1").strip()
-    return ""
+def _epoch_time_system(p: Path, head: bytes) -> str:
+    """The time system of the epochs of a RINEX 3 observation file, from its header as the readers parse it
+    (:func:`cdgps_cli.io.rinex.epoch_time_system`: TIME OF FIRST OBS, else the file's system's own); NotCut for a
+    header the readers would not take as one of a RINEX 3 observation file (the whole reading names what)."""
+    try:
+        lines = _split_lines(head)
+        version, ftype, system = _parse_version_line(lines, p, False, "observation")
+        if ftype != "O" or version < 3:
+            raise NotCut("RINEX 2" if ftype == "O" else "not an observation file")
+        hdr = _ObsHeader(p, version, False)
+        hdr.info["satellite_system"] = system or "G"
+        hdr.apply_header(lines)
+    except (CdgpsError, ValueError, IndexError):
+        raise NotCut("its header") from None
+    return epoch_time_system(hdr.info)
 
 
 def check_block(hours: RinexHours, j: int, info: dict, previous_last_s: float | None) -> None:

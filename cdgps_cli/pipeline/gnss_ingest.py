@@ -106,7 +106,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
-    att, extra_inputs, done = _sensor_parts(cfg, inp, sensor_paths)
+    att, extra_inputs, done = _sensor_parts(inp, _sensors(cfg, sensor_paths))
     s = done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
                                      extra_inputs=extra_inputs))
     s["reading"] = {"hour_by_hour": False, "blocks": None, "why_whole": "; ".join(why) or None}
@@ -117,7 +117,8 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
     """:func:`ingest_gnss` of receivers read block by block (:func:`cdgps_cli.io.gnss_hours.hourly_inputs`): the
     observations written as they are read, the checks made on the thin tables once the last block is in."""
     heap.map_large_blocks(1 << 20)         # each block's arrays unmapped when freed: the blocks' memory does not pile up
-    extra_inputs = {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(_sensors(cfg, sensor_paths))}
+    sensors = _sensors(cfg, sensor_paths)
+    extra_inputs = _sensor_inputs(sensors)
     parts = {}
 
     def finish():
@@ -129,7 +130,7 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
         except CdgpsError as exc:
             raise _ChecksRefused(exc) from None
         lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
-        att, _, parts["done"] = _sensor_parts(cfg, inp, sensor_paths)
+        att, _, parts["done"] = _sensor_parts(inp, sensors)
         return pos_src, common, lock, att
 
     say(f"writing {out_path} …")
@@ -152,15 +153,19 @@ def _sensors(cfg: GnssConfig, sensor_paths) -> list:
     return config_sensor_paths(cfg) if sensor_paths is None else [str(p) for p in sensor_paths]
 
 
-def _sensor_parts(cfg: GnssConfig, inp, sensor_paths) -> tuple:
+def _sensor_inputs(sensors: list) -> dict:
+    """The sensor logs' entries of the RUN's hashed inputs."""
+    return {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(sensors)}
+
+
+def _sensor_parts(inp, sensors: list) -> tuple:
     """(the sensor logs' attachments or None, their metadata inputs, a function completing the summary with them)
-    of an ingest: the ``[gnss] sensors`` logs (or ``sensor_paths``) and the UBX logs' ESF measurements."""
-    sensors = _sensors(cfg, sensor_paths)
+    of an ingest: the ``sensors`` logs (:func:`_sensors`) and the UBX logs' ESF measurements."""
     ref_s = min(float(rx.raw["time_gps_s"].min()) for rx in inp.receivers.values())
     imu, imu_info = receiver_imu_tables({n: (inp.pieces or {}).get(n, [p]) for n, (k, p) in inp.files.items()
                                          if k == "ubx"}, ref_s)
     att = sensor_attachments(sensors, ref_s, imu) if sensors or imu else None
-    extra_inputs = {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(sensors)}
+    extra_inputs = _sensor_inputs(sensors)
 
     def done(s: dict) -> dict:
         if sensors or imu:
