@@ -19,6 +19,7 @@ left to the whole-file ingest, which the caller then runs: its errors are the on
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -33,29 +34,36 @@ from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_obs
 from cdgps_cli.io.rinex_hours import NotCut, check_block, join_obs_headers, rinex_hours
 from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS, first_of_repeated_epochs, read_rinex_signals
+from cdgps_cli.io.ubx import UBX_OBS_COLUMNS, empty_signal_table, read_ubx_block, sfrbx_frames, sfrbx_of_blocks
+from cdgps_cli.io.ubx_frames import rtcm_station_arp
+from cdgps_cli.io.ubx_hours import check_ubx_block, join_ubx_infos, ubx_hours
 
 __all__ = ["hourly_inputs", "ThinTables", "NotCut"]
 
 _THIN_RAW = {"time_gps_s": np.float64, "phase_cycles": np.float32, "pseudorange_m": np.float32, "lli": np.int8}
 _THIN_SIGNALS = {"time_gps_s": np.float64, "phase_cycles": np.float32, "lli": np.int8}
+_THIN_UBX = {"lock_time_ms": np.int32, "half_cycle": np.int8}
+"""A UBX receiver's columns besides: its loss of lock comes from its lock times and half-cycle status."""
 
 
 class ThinTables:
     """The columns of a receiver's tables that the ingest's checks and summaries read of the whole record, kept
     block by block in narrow types: ``raw`` (time, satellite, L1 phase and code — NaN where none — and LLI) and
-    ``signals`` (time, satellite, signal, phase, LLI).  The satellite and signal columns become categoricals (their
-    categories sorted)."""
+    ``signals`` (time, satellite, signal, phase, LLI); a UBX receiver's (``ubx``) also their lock times and
+    half-cycle status.  The satellite and signal columns become categoricals (their categories sorted)."""
 
-    def __init__(self, codes: dict | None = None):
+    def __init__(self, codes: dict | None = None, ubx: bool = False):
         self._parts = {"raw": [], "signals": []}
+        extra = _THIN_UBX if ubx else {}
+        self._dtypes = {"raw": {**_THIN_RAW, **extra}, "signals": {**_THIN_SIGNALS, **extra}}
         self._codes: dict = new_codes() if codes is None else codes
         """table → text column → (text → code), shared by the tables of one receiver's files: the same categories,
         so that their frames join without becoming strings (:func:`new_codes`)."""
 
     def add(self, raw: pd.DataFrame, signals: pd.DataFrame | None) -> None:
-        self._parts["raw"].append(self._thin(raw, _THIN_RAW, self._codes["raw"]))
+        self._parts["raw"].append(self._thin(raw, self._dtypes["raw"], self._codes["raw"]))
         if signals is not None:
-            self._parts["signals"].append(self._thin(signals, _THIN_SIGNALS, self._codes["signals"]))
+            self._parts["signals"].append(self._thin(signals, self._dtypes["signals"], self._codes["signals"]))
 
     @staticmethod
     def _thin(tab: pd.DataFrame, dtypes: dict, text: dict) -> dict:
@@ -100,8 +108,8 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
     try:
         files, pieces = g._ingest_files(cfg, rinex, ubx)
         master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
-        if not master or master not in files or any(k != "rinex" for k, _ in files.values()):
-            why.append("UBX logs are read whole" if any(k != "rinex" for k, _ in files.values()) else "no master")
+        if not master or master not in files:
+            why.append("no master")
             return None
         nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
             expand_paths([str(p) for p in nav_paths], "--nav")
@@ -112,19 +120,20 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
     hours = _Closer({})
     given = {n: list(ps) for n, ps in pieces.items()}
     for n in [master, *[n for n in files if n != master]]:
-        cut = _cut_record(pieces[n], why)
+        cut = _cut_record(pieces[n], files[n][0], why)
         if cut is None:
             hours.close()
             return None
         hours.hours[n] = cut
         if len(cut) > 1:          # the files in time order, as the whole-file ingest puts them before writing
             pieces[n] = [given[n][h.order] for h in cut]
-            files[n] = ("rinex", g.pieces_text(pieces[n]))
+            files[n] = (files[n][0], g.pieces_text(pieces[n]))
     warnings: list[str] = []
     try:
         nav_ahead, glonass_k = g._glonass_nav(cfg.signals, nav_list)
-        nav, nav_source = g._ingest_nav(cfg, nav_list, nav_ahead, {}, files, pieces, master, say, warnings)
-    except g.CdgpsError:
+        ahead = {} if nav_list else _sfrbx_ahead(hours.hours, files, say)
+        nav, nav_source = g._ingest_nav(cfg, nav_list, nav_ahead, ahead, files, pieces, master, say, warnings)
+    except (g.CdgpsError, NotCut):
         hours.close()
         why.append("an error in the navigation files, named by the whole reading")
         return None
@@ -133,13 +142,14 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
     return inp, g.Blocks(_blocks(cfg, inp, hours.hours, keys, given, glonass_k, say), len(keys)), hours
 
 
-def _cut_record(paths: list, why: list) -> list | None:
-    """The files of a receiver cut into blocks (:func:`~cdgps_cli.io.rinex_hours.rinex_hours`), in time order; None
-    (the files read whole; the reason appended to ``why``) when one cannot be cut or two overlap (the whole reading
-    joins them, an epoch repeated kept from the earlier file)."""
+def _cut_record(paths: list, kind: str, why: list) -> list | None:
+    """The files of a receiver cut into blocks (:func:`~cdgps_cli.io.rinex_hours.rinex_hours`,
+    :func:`~cdgps_cli.io.ubx_hours.ubx_hours`), in time order; None (the files read whole; the reason appended to
+    ``why``) when one cannot be cut or two overlap (the whole reading joins them, an epoch repeated kept from the
+    earlier file)."""
     cut = []
     for i, p in enumerate(paths):
-        h = rinex_hours(p, gnss_archive.OBS_BLOCK_S, why)
+        h = (ubx_hours if kind == "ubx" else rinex_hours)(p, gnss_archive.OBS_BLOCK_S, why)
         if h is None:
             for x in cut:
                 x.close()
@@ -165,9 +175,28 @@ class _Closer:
                 h.close()
 
 
-def _empty_tables(signals) -> tuple:
+def _kind(cut: list) -> str:
+    """``"ubx"`` or ``"rinex"``: the kind of a receiver's files (:func:`_cut_record`)."""
+    return cut[0].kind
+
+
+def _empty_tables(signals, kind: str = "rinex") -> tuple:
+    """(raw rows, signal rows or None) of a receiver without an epoch in a block: its tables' columns, no rows."""
+    if kind == "ubx":
+        return g._raw_from_ubx(pd.DataFrame({c: np.zeros(0) for c in UBX_OBS_COLUMNS})), \
+            (empty_signal_table() if signals else None)
     raw = g._raw_from_rinex(pd.DataFrame({c: np.zeros(0) for c in OBS_COLUMNS}))
     return raw, (pd.DataFrame({c: np.zeros(0) for c in SIGNAL_COLUMNS}) if signals else None)
+
+
+def _checked(hours, j: int, info: dict, previous_last_s: float | None) -> float:
+    """The last epoch (GPS s) of block ``j`` of a file, checked to be what the whole file's reading holds of it
+    (:func:`~cdgps_cli.io.rinex_hours.check_block`, :func:`~cdgps_cli.io.ubx_hours.check_ubx_block`; NotCut)."""
+    if hours.kind == "ubx":
+        check_ubx_block(hours, j, info, previous_last_s)
+        return float(info["time_s"][-1])
+    check_block(hours, j, info, previous_last_s)
+    return info["time_last_obs_gps_s"]
 
 
 def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_k: dict, say):
@@ -185,20 +214,19 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
             for j, (k, *_) in enumerate(h.blocks):
                 index[n].setdefault(k, []).append((f, j))
     codes = {n: new_codes() for n in names}
-    thin = {n: [ThinTables(codes[n]) for _ in hours[n]] for n in names}
+    thin = {n: [ThinTables(codes[n], ubx=_kind(hours[n]) == "ubx") for _ in hours[n]] for n in names}
     infos: dict = {n: [[] for _ in hours[n]] for n in names}
     last: dict = {n: None for n in names}
     for n in names:
-        say(f"reading RINEX {inp.files[n][1]} ({n}) hour by hour …")
+        say(f"reading {_kind(hours[n]).upper()} {inp.files[n][1]} ({n}) hour by hour …")
     for k in keys:
         block = []
         for n, parts in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k)):
             for f, j, (raw, sig, info) in parts:
-                check_block(hours[n][f], j, info, last[n])
-                last[n] = info["time_last_obs_gps_s"]
+                last[n] = _checked(hours[n][f], j, info, last[n])
                 infos[n][f].append(info)
                 thin[n][f].add(raw, sig)
-            block.append(_joined(parts) if parts else _empty_tables(cfg.signals))
+            block.append(_joined(parts) if parts else _empty_tables(cfg.signals, _kind(hours[n])))
         yield block
         del block, parts
         heap.trim()           # (the block's freed pages back to the system: its memory does not add up block by block)
@@ -206,6 +234,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
     inp.receivers = {n: _receiver(cfg, inp, n, hours[n], given[n], infos[n], thin[n], l1_opt, joins, join_warnings)
                      for n in names}
     inp.joins = joins
+    inp.integrity = g._ubx_integrity(inp.receivers, inp.files)
     join_warnings = [w for n in inp.files for w in join_warnings if w[0] == n]
     inp.warnings[0:0] = [w for _, w in join_warnings] + [w for n, rx in inp.receivers.items()
                                                           for w in g._receiver_warnings(n, inp.files[n][1], rx)]
@@ -235,7 +264,14 @@ def _read_blocks(cfg: GnssConfig, hours: dict, index: dict, k: int, l1_opt: bool
 
 
 def _read_block(cfg: GnssConfig, hours, j: int, l1_opt: bool, glonass_k: dict) -> tuple:
-    """(raw table, signal table or None, header summary) of block ``j`` of a file, read as a file of its own."""
+    """(raw table, signal table or None, header summary) of block ``j`` of a file, read as a file of its own (a UBX
+    log's: the summary of :func:`~cdgps_cli.io.ubx.read_ubx_block` but its tables)."""
+    if hours.kind == "ubx":
+        b = read_ubx_block(hours.path, hours.block_bytes(j), cfg.signals)
+        sig = b.pop("signals")
+        if sig is not None:
+            sig = first_of_repeated_epochs(sig)[0]
+        return g._raw_from_ubx(b.pop("obs")), sig, b
     read = hours.block_bytes(j)
     info, obs = read_rinex_obs(hours.path, gps_l1_optional=l1_opt, read=read)
     sig = None
@@ -255,17 +291,18 @@ def _receiver(cfg: GnssConfig, inp, n: str, cut: list, given: list, infos: list,
     for h, inf, th in zip(cut, infos, thin):
         if not inf:
             raise NotCut("a file without epochs")
-        header, info = g.rinex_header_info(h.path, join_obs_headers(inf))
         raw = th.frame("raw")
         heap.trim()                  # (the blocks' parts, joined, freed: their pages back to the system)
+        rx = _ubx_file(n, h, inf, raw) if h.kind == "ubx" else _rinex_file(n, h, inf, raw)
         if not l1_opt:
-            g.refuse_no_l1_phase(h.path, "rinex", header, raw)
-        rxs.append(g.GnssReceiver(n, "rinex", h.path.name, header, raw, info, None))
+            g.refuse_no_l1_phase(h.path, h.kind, rx.header, raw)
+        rxs.append(rx)
     if len(rxs) == 1:
         rx = rxs[0]
     else:
         by_given = sorted(range(len(cut)), key=lambda i: cut[i].order)
-        rx, joins[n], w, order = g.join_receivers(n, [rxs[i] for i in by_given], given)
+        nav = _joined_sfrbx([infos[i] for i in by_given], [rxs[i] for i in by_given]) if _kind(cut) == "ubx" else None
+        rx, joins[n], w, order = g.join_receivers(n, [rxs[i] for i in by_given], given, ubx_nav=nav)
         if [by_given[i] for i in order] != list(range(len(cut))):
             raise NotCut("the files' order")           # (e.g. files without GPS rows: the whole reading keeps theirs)
         join_warnings.extend((n, x) for x in w)
@@ -275,3 +312,51 @@ def _receiver(cfg: GnssConfig, inp, n: str, cut: list, given: list, infos: list,
         heap.trim()
         g.refuse_absent_signals(cfg.signals, rx.signals, inp.files[n][1], n)
     return rx
+
+
+def _rinex_file(n: str, h, inf: list, raw: pd.DataFrame) -> g.GnssReceiver:
+    """The receiver of one RINEX file read block by block (``inf``: its blocks' header summaries)."""
+    header, info = g.rinex_header_info(h.path, join_obs_headers(inf))
+    return g.GnssReceiver(n, "rinex", h.path.name, header, raw, info, None)
+
+
+def _ubx_file(n: str, h, inf: list, raw: pd.DataFrame) -> g.GnssReceiver:
+    """The receiver of one UBX log read block by block (``inf``: its blocks' summaries,
+    :func:`~cdgps_cli.io.ubx.read_ubx_block`): the read summary joined, the ephemerides of its RXM-SFRBX frames,
+    the station position of its last RTCM 1005/1006, as :func:`~cdgps_cli.io.gnss_run.read_receiver_file` reads
+    the whole log.  NotCut for a log without GPS L1 C/A (the whole reading refuses it, naming what it holds)."""
+    if not len(raw):
+        raise NotCut("no GPS L1 C/A measurements")
+    info_u = join_ubx_infos([b["info"] for b in inf])
+    nav, info_u["sfrbx"] = sfrbx_of_blocks(b"".join(b["sfrbx"] for b in inf), info_u["week"])
+    info_u["rtcm_base"] = rtcm_station_arp([r for b in inf for r in b["rtcm_arp"]])
+    header, info = g.ubx_header_info(h.path, n, info_u, raw)
+    return g.GnssReceiver(n, "ubx", h.path.name, header, raw, info, nav)
+
+
+def _joined_sfrbx(infos: list, rxs: list):
+    """``ubx_nav`` of :func:`~cdgps_cli.io.gnss_sequence.join_receivers` for UBX logs read block by block
+    (``infos``: each log's blocks' summaries, in the order of ``rxs``): their RXM-SFRBX frames in time order
+    decoded as one stream, with the first log's week."""
+    def nav(order: list) -> tuple:
+        frames = b"".join(b["sfrbx"] for i in order for b in infos[i])
+        return sfrbx_of_blocks(frames, rxs[order[0]].info.get("week"))
+    return nav
+
+
+def _sfrbx_ahead(hours: dict, files: dict, say) -> dict:
+    """Before the blocks are read, when no navigation file is given: the receivers' ephemerides from their UBX
+    logs' RXM-SFRBX frames (framed block by block; the logs in time order decoded as one stream, as the whole
+    reading decodes them), as stand-ins for the receivers (``format``, ``nav``) that
+    :func:`~cdgps_cli.io.gnss_run._ingest_nav` takes; {} when no receiver is a UBX log."""
+    if not any(_kind(cut) == "ubx" for cut in hours.values()):
+        return {}
+    out = {}
+    for n, cut in hours.items():
+        nav = None
+        if _kind(cut) == "ubx":
+            say(f"reading the RXM-SFRBX frames of {files[n][1]} ({n}) …")
+            frames = b"".join(sfrbx_frames(h.block_bytes(j)) for h in cut for j in range(len(h.blocks)))
+            nav = sfrbx_of_blocks(frames, int(cut[0].first_s // 604800))[0]
+        out[n] = SimpleNamespace(format=_kind(cut), nav=nav)
+    return out

@@ -270,18 +270,24 @@ def read_receiver_file(name: str, kind: str, path: str | Path, *, strict: bool =
 
         info_u, obs, sf_nav = read_ubx_log(p, strict=strict, data=data)
         raw = _raw_from_ubx(obs)
-        info = _json_safe(info_u)
-        base = info_u.get("rtcm_base")
-        header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name,
-                  "approx_position_xyz_m": base["arp_ecef_m"] if base else None,
-                  "position_source": f"RTCM {base['message']} ARP (station {base['station_id']})" if base else None,
-                  "receiver_type": "u-blox (RXM-RAWX)", "interval_s": nominal_interval_s(raw["time_gps_s"].to_numpy())}
-        header = _json_safe(header)
+        header, info = ubx_header_info(p, name, info_u, raw)
     else:  # pragma: no cover - the CLI only passes these two
         raise ValueError(kind)
     if not gps_l1_optional:
         refuse_no_l1_phase(p, kind, header, raw)
     return GnssReceiver(name, kind, p.name, header, raw, info, sf_nav if kind == "ubx" else None)
+
+
+def ubx_header_info(p: Path, name: str, info_u: dict, raw: pd.DataFrame) -> tuple[dict, dict]:
+    """(the receiver's header, its read summary ``info``) of a UBX log's read summary
+    (:func:`~cdgps_cli.io.ubx.read_ubx_log`'s ``info``) and raw table: the station position of its RTCM
+    1005/1006 messages, the nominal interval of its epochs."""
+    base = info_u.get("rtcm_base")
+    header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name,
+              "approx_position_xyz_m": base["arp_ecef_m"] if base else None,
+              "position_source": f"RTCM {base['message']} ARP (station {base['station_id']})" if base else None,
+              "receiver_type": "u-blox (RXM-RAWX)", "interval_s": nominal_interval_s(raw["time_gps_s"].to_numpy())}
+    return _json_safe(header), _json_safe(info_u)
 
 
 def rinex_header_info(p: Path, hdr: dict) -> tuple[dict, dict]:

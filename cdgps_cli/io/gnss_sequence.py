@@ -122,7 +122,7 @@ def _merged_info(infos: list[dict], reps: dict) -> dict:
     return out
 
 
-def join_receivers(name: str, rxs: list, paths: list) -> tuple:
+def join_receivers(name: str, rxs: list, paths: list, ubx_nav=None) -> tuple:
     """One :class:`~cdgps_cli.io.gnss_run.GnssReceiver` of a receiver's consecutive files.
 
     Parameters
@@ -133,6 +133,10 @@ def join_receivers(name: str, rxs: list, paths: list) -> tuple:
         One per file (as read, any order).
     paths : list of str
         The files, in the order of ``rxs``.
+    ubx_nav : callable, optional
+        A UBX record's (ephemerides, decoder counters) from the files in time order (``ubx_nav(order)``, the
+        files' indices in time order), when its RXM-SFRBX frames are already at hand (a record read hour by
+        hour, :mod:`cdgps_cli.io.gnss_hours`); default: :func:`ubx_sequence_ephemerides` frames the files again.
 
     Returns
     -------
@@ -185,7 +189,8 @@ def join_receivers(name: str, rxs: list, paths: list) -> tuple:
             info[k] = []                    # byte offsets are per file: see info["files"][i]["problems"]
     nav = None
     if rx0.format == "ubx":
-        nav, info["sfrbx"] = ubx_sequence_ephemerides(paths_o, rx0.info.get("week"))
+        nav, info["sfrbx"] = (ubx_sequence_ephemerides(paths_o, rx0.info.get("week")) if ubx_nav is None
+                              else ubx_nav(order))
     out = type(rx0)(rx0.name, rx0.format, pieces_text([Path(p).name for p in paths_o]), header, raw, info, nav)
     return out, join, warnings, order
 

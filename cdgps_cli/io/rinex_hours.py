@@ -50,6 +50,7 @@ class RinexHours:
     """GPS s of the last epoch line."""
     order: int = 0
     """The file's place in the list it was given in (a record of several files, :mod:`cdgps_cli.io.gnss_hours`)."""
+    kind: str = "rinex"
 
     def block_bytes(self, j: int) -> tuple[bytes, bool]:
         """The ``read=`` argument of the readers for block ``j``: the header and that block's records (read from

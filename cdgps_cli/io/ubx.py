@@ -618,15 +618,20 @@ def read_ubx_signals(path: str | Path, names, *, strict: bool = False, data: byt
     CdgpsError
         As :func:`read_ubx_log`; a signal a UBX log cannot carry (not in :data:`UBX_SIGNALS`).
     """
-    from cdgps_cli.core.signals import wavelength_m  # noqa: PLC0415
-    from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS  # noqa: PLC0415
-
     p = Path(path)
     bad = [n for n in names if n not in UBX_SIGNALS]
     if bad:
         raise CdgpsError(f"{p}: signal(s) {', '.join(bad)} cannot come from u-blox RXM-RAWX (it carries "
                          f"{', '.join(UBX_SIGNALS)})")
     _, _, _, _, epochs, meas, _, t = _decoded_rawx(p, strict, data)
+    return _signal_table(meas, t, names)
+
+
+def _signal_table(meas: np.ndarray, t: np.ndarray, names) -> pd.DataFrame:
+    """:func:`read_ubx_signals`' table of decoded RXM-RAWX measurements (``t``: their epochs' GPS s)."""
+    from cdgps_cli.core.signals import wavelength_m  # noqa: PLC0415
+    from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS  # noqa: PLC0415
+
     tabs = []
     for name in names:
         for rank, (g, sid) in enumerate(UBX_SIGNALS[name]):
@@ -643,8 +648,69 @@ def read_ubx_signals(path: str | Path, names, *, strict: bool = False, data: byt
                 "lock_time_ms": m["locktime"].astype(np.int64), "half_cycle": ((m["trkStat"] & 4) == 0).astype(np.int64),
                 "rank": rank}))
     cols = list(SIGNAL_COLUMNS) + ["lock_time_ms", "half_cycle"]
-    if not tabs:
-        return pd.DataFrame(columns=cols)
+    if not tabs:                     # (the columns' types of a table with rows: a block of a log may have none)
+        types = {"time_gps_s": float, "sat": object, "signal": object, "lli": np.int64, "lock_time_ms": np.int64,
+                 "half_cycle": np.int64}
+        return pd.DataFrame({c: np.zeros(0, dtype=types.get(c, float)) for c in cols})
     out = pd.concat(tabs, ignore_index=True).sort_values(["time_gps_s", "sat", "signal", "rank"], kind="stable")
     out = out.drop_duplicates(["time_gps_s", "sat", "signal"], keep="first")        # e.g. E1 C and E1 B: the first
     return out[cols].reset_index(drop=True)
+
+
+_SFRBX_IDS = (0x13, 0x11)
+"""RXM-SFRBX and RXM-SFRB (class 0x02): the frames :func:`~cdgps_cli.io.sfrbx.sfrbx_ephemerides_at` decodes."""
+
+
+def read_ubx_block(path: str | Path, data: bytes, signals=()) -> dict:
+    """A block of a UBX log's frames (``data``: whole frames, cut at an RXM-RAWX frame's start) read as
+    :func:`read_ubx_log` and :func:`read_ubx_signals` read the whole log, from one decoding
+    (:mod:`cdgps_cli.io.ubx_hours` joins the blocks of a long log).
+
+    Returns
+    -------
+    dict
+        ``obs`` (the GPS L1 C/A table of :func:`read_ubx_log`; may be empty), ``signals`` (the table of
+        :func:`read_ubx_signals` of ``signals``, or None without any), ``info`` (its ``info`` but ``sfrbx`` and
+        ``rtcm_base``), ``time_s`` (the epochs' GPS s, in log order), ``sfrbx`` (the bytes of its RXM-SFRBX /
+        RXM-SFRB frames, in log order) and ``rtcm_arp`` (its RTCM 3 1005/1006 frames, as
+        :func:`~cdgps_cli.io.ubx_frames.rtcm_station_arp` takes them).
+
+    Raises
+    ------
+    CdgpsError
+        As :func:`read_ubx_log` (a block without any RXM-RAWX frame, epochs going backwards …).
+    """
+    p = Path(path)
+    (_, off, end), rtcm, stats, counts, epochs, meas, undecodable, t = _decode_rawx_log(p, False, data)
+    code = _signal_codes(meas)
+    reset = (epochs["recStat"] & 2) != 0
+    obs, gps_sats = _l1_table(p, meas, t, reset, (code == 0).nonzero()[0])
+    info = _log_info(p, epochs, gps_sats, _signal_counts(meas, code), counts, len(off), stats, undecodable)
+    return {"obs": obs, "signals": _signal_table(meas, t, signals) if signals else None, "info": info, "time_s": t,
+            "sfrbx": _sfrbx_bytes(data, off, end), "rtcm_arp": [r for r in rtcm if r[1] in (1005, 1006)]}
+
+
+def empty_signal_table() -> pd.DataFrame:
+    """:func:`read_ubx_signals`' table without rows (its columns and their types)."""
+    return _signal_table(np.zeros(0, _RAWX_ROW), np.zeros(0), ())
+
+
+def _sfrbx_bytes(data: bytes, off: np.ndarray, end: np.ndarray) -> bytes:
+    """The RXM-SFRBX / RXM-SFRB frames among the frames ``data[off[k]:end[k]]``, joined in log order."""
+    x = np.frombuffer(data, np.uint8)
+    sf = (x[off + 2] == 0x02) & np.isin(x[off + 3], _SFRBX_IDS)
+    return b"".join(data[a:b] for a, b in zip(off[sf].tolist(), end[sf].tolist()))
+
+
+def sfrbx_frames(data: bytes) -> bytes:
+    """The RXM-SFRBX / RXM-SFRB frames of a block of a log's bytes (framed as :func:`read_ubx_log` frames them),
+    joined in log order: what :func:`sfrbx_of_blocks` decodes."""
+    off, end, _, _ = split_stream_spans(data)
+    return _sfrbx_bytes(data, off, end)
+
+
+def sfrbx_of_blocks(sfrbx: bytes, week_ref: int) -> tuple[pd.DataFrame, dict]:
+    """(ephemerides, decoder counters) of the RXM-SFRBX frames of a log's blocks, joined in log order
+    (:func:`read_ubx_block`'s ``sfrbx``): what :func:`read_ubx_log` decodes of the whole log."""
+    off, end, _, _ = split_stream_spans(sfrbx) if sfrbx else (np.zeros(0, np.int64), np.zeros(0, np.int64), None, None)
+    return sfrbx_ephemerides_at(sfrbx, off, end, week_ref)

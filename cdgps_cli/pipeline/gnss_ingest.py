@@ -130,7 +130,7 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
         except CdgpsError as exc:
             raise _ChecksRefused(exc) from None
         lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
-        att, _, parts["done"] = _sensor_parts(inp, sensors)
+        att, _, parts["done"] = _sensor_parts(inp, sensors, esf=False)
         return pos_src, common, lock, att
 
     say(f"writing {out_path} …")
@@ -158,12 +158,13 @@ def _sensor_inputs(sensors: list) -> dict:
     return {f"sensors[{i}]": sensor_log_file(p) for i, p in enumerate(sensors)}
 
 
-def _sensor_parts(inp, sensors: list) -> tuple:
+def _sensor_parts(inp, sensors: list, esf: bool = True) -> tuple:
     """(the sensor logs' attachments or None, their metadata inputs, a function completing the summary with them)
-    of an ingest: the ``sensors`` logs (:func:`_sensors`) and the UBX logs' ESF measurements."""
+    of an ingest: the ``sensors`` logs (:func:`_sensors`) and, with ``esf``, the UBX logs' ESF measurements (an
+    ingest read hour by hour knows its logs have none: :func:`~cdgps_cli.io.ubx_hours.check_ubx_block`)."""
     ref_s = min(float(rx.raw["time_gps_s"].min()) for rx in inp.receivers.values())
     imu, imu_info = receiver_imu_tables({n: (inp.pieces or {}).get(n, [p]) for n, (k, p) in inp.files.items()
-                                         if k == "ubx"}, ref_s)
+                                         if k == "ubx" and esf}, ref_s)
     att = sensor_attachments(sensors, ref_s, imu) if sensors or imu else None
     extra_inputs = _sensor_inputs(sensors)
 
@@ -272,10 +273,25 @@ def lock_obs(rx: GnssReceiver, signals) -> pd.DataFrame:
     """What :func:`lock_summary` counts of a receiver: the time, satellite, phase and loss-of-lock columns of
     :func:`anchor_obs`, in narrow types.  A RINEX receiver's are its anchor rows as recorded (its raw table or the
     anchor signal's rows: all a receiver read hour by hour keeps, :class:`cdgps_cli.io.gnss_hours.ThinTables`); a
-    UBX receiver's loss of lock comes from its lock times (:func:`anchor_obs`)."""
+    UBX receiver's loss of lock comes from its lock times (:func:`ubx_loss_of_lock`, as :func:`anchor_obs` takes
+    it: of the raw table's lock times, or of the anchor signal's): the columns these need, all a UBX receiver read
+    hour by hour keeps."""
     if rx.format == "ubx":
-        o = anchor_obs(rx, signals)
-        return o[["time_gps_s", "sat", "phase_l1_cycles", "lli_l1"]]
+        from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
+
+        name = anchor_signal(signals)
+        if name is None:
+            r = rx.raw
+            lli = ubx_loss_of_lock(r["time_gps_s"].to_numpy(), r["sat"].to_numpy(), r["phase_cycles"].to_numpy(),
+                                   r["lock_time_ms"].to_numpy(dtype=np.float64),
+                                   r["half_cycle"].to_numpy(dtype=np.int64) == 1)
+        else:
+            s = signal_obs(rx)
+            r = s[s["signal"].to_numpy() == name] if s is not None else pd.DataFrame(
+                {"time_gps_s": [], "sat": [], "phase_cycles": [], "lli": []})
+            lli = r["lli"].to_numpy(dtype=np.int64)
+        return pd.DataFrame({"time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64), "sat": r["sat"].to_numpy(),
+                             "phase_l1_cycles": r["phase_cycles"].to_numpy(), "lli_l1": lli}, copy=False)
     r = _anchor_rows(rx, signals)
     return pd.DataFrame({"time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64), "sat": r["sat"].to_numpy(),
                          "phase_l1_cycles": r["phase_cycles"].to_numpy(), "lli_l1": r["lli"].to_numpy()}, copy=False)

@@ -1,0 +1,225 @@
+"""A long u-blox UBX log read hour by hour, in bounded memory (issue 29).
+
+A day of a 10 Hz u-blox receiver is ≈ 1–2 GB of RXM-RAWX frames; read whole, the log's bytes and its decoded
+measurements are all in memory at once.  This module cuts a plain (uncompressed) UBX log into the byte ranges of
+its RXM-RAWX epochs in each block of GPS time (:data:`cdgps_cli.io.gnss_archive.OBS_BLOCK_S`, the blocks of a
+RUN's observation archives) without reading it: the first RXM-RAWX frame of each block is found by bisection on
+byte offsets, each probe reading a few kilobytes and resynchronising on the next frame whose sync word, class,
+length and Fletcher checksum are those of an RXM-RAWX frame.  Each block — from one block's first RXM-RAWX frame to
+the next block's, with the other frames between (RXM-SFRBX, NAV, NMEA, RTCM) — is then read by the same decoding as
+a whole log (:func:`cdgps_cli.io.ubx.read_ubx_block`), and the blocks' summaries are joined
+(:func:`join_ubx_infos`) into what the whole log's reading gives; the RXM-SFRBX frames of every block are kept (a
+few bytes a second) and decoded once at the end, in log order, as the whole reading decodes them.
+
+Only what is read exactly as whole is read so (:class:`~cdgps_cli.io.rinex_hours.NotCut` otherwise, and the log is
+read whole, which also counts and names what it loses): every block must be clean — no frame failing its checksum,
+no undecodable RXM-RAWX, no bytes skipped, no truncated tail, no bad RTCM frame —, its epochs in time order and in
+their block, and without ESF-MEAS sensor messages (the sensor tables read the log whole).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+from cdgps_cli.io.rinex_hours import NotCut
+
+__all__ = ["UbxHours", "ubx_hours", "check_ubx_block", "join_ubx_infos", "LOSS_COUNTS"]
+
+_HEAD = b"\xb5\x62\x02\x15"
+"""Sync word, class and id of an RXM-RAWX frame."""
+_PROBE = 1 << 14
+"""Bytes a probe reads at a time (an RXM-RAWX frame is at most 8 + 16 + 32·255 bytes)."""
+_MAX_FRAME = 8 + 16 + 32 * 255
+
+LOSS_COUNTS = ("bad_checksum_frames", "undecodable_frames", "truncated_tail_bytes", "skipped_bytes",
+               "bad_crc_rtcm_frames")
+"""A block's read-summary counters that must all be zero for it to be read as the whole log reads it."""
+
+
+@dataclass
+class UbxHours:
+    """A plain UBX log cut into blocks of GPS time: ``blocks`` [(block number k, first byte, end byte, its first
+    epoch's GPS s)], in log order, each holding the RXM-RAWX epochs with ``floor(t / block_s) == k`` (the first
+    block from the log's first byte, each block to the next one's first RXM-RAWX frame)."""
+
+    path: Path
+    blocks: list
+    block_s: float
+    first_s: float
+    last_s: float
+    order: int = 0
+    """The log's place in the list it was given in (a record of several logs, :mod:`cdgps_cli.io.gnss_hours`)."""
+    kind: str = "ubx"
+
+    def block_bytes(self, j: int) -> bytes:
+        """The bytes of block ``j``, read from the log."""
+        _, a, b, _ = self.blocks[j]
+        with open(self.path, "rb") as fh:
+            fh.seek(a)
+            data = fh.read(b - a)
+        if len(data) != b - a:
+            raise NotCut("the file changed")
+        return data
+
+    def close(self) -> None:
+        """(Nothing is held open between blocks: kept for the callers' symmetry.)"""
+
+
+def _fletcher_ok(frame: bytes) -> bool:
+    a = b = 0
+    for byte in frame[2:-2]:
+        a = (a + byte) & 0xFF
+        b = (b + a) & 0xFF
+    return frame[-2] == a and frame[-1] == b
+
+
+def _rawx_frame_at(buf: bytes, i: int) -> int | None:
+    """Length of the RXM-RAWX frame at ``buf[i]`` when one is there, whole and valid (its announced length that of
+    its measurement count, its checksum right); 0 when ``buf`` ends before its end; None when not one."""
+    if len(buf) < i + 18:
+        return 0
+    n = int.from_bytes(buf[i + 4:i + 6], "little")
+    if n < 16 or (n - 16) % 32 or buf[i + 6 + 11] != (n - 16) // 32:
+        return None
+    if len(buf) < i + 8 + n:
+        return 0
+    return 8 + n if _fletcher_ok(buf[i:i + 8 + n]) else None
+
+
+def _time_s(buf: bytes, i: int) -> float:
+    """GPS s (week·604800 + rcvTow) of the RXM-RAWX frame at ``buf[i]``."""
+    tow, week = struct.unpack_from("<dH", buf, i + 6)
+    return week * 604800.0 + tow
+
+
+class _Probe:
+    """Finds the first valid RXM-RAWX frame at or after a byte offset of an open log."""
+
+    def __init__(self, fh, size: int):
+        self.fh, self.size = fh, size
+
+    def at_or_after(self, at: int) -> tuple[int, float]:
+        """(offset, GPS s) of the first RXM-RAWX frame starting at or after ``at``; (size, inf) when none."""
+        pos = max(at, 0)
+        while pos < self.size:
+            self.fh.seek(pos)
+            buf = self.fh.read(_PROBE + _MAX_FRAME)      # (a frame starting in the first _PROBE bytes is all in it)
+            i = 0
+            while 0 <= (i := buf.find(_HEAD, i)) < _PROBE:
+                if _rawx_frame_at(buf, i):
+                    return pos + i, _time_s(buf, i)
+                i += 1
+            pos += _PROBE
+        return self.size, math.inf
+
+    def first_from(self, t_s: float, end: int) -> int:
+        """Offset of the first RXM-RAWX frame whose time is ≥ ``t_s`` (frames in time order), by bisection."""
+        a, b = 0, end
+        while b - a > 1:
+            mid = (a + b) // 2
+            if self.at_or_after(mid)[1] >= t_s:
+                b = mid
+            else:
+                a = mid
+        e, t = self.at_or_after(a)
+        while e < end and t < t_s:              # (a ≤ the answer: walk the few frames left)
+            e, t = self.at_or_after(e + 1)
+        return e
+
+    def last(self) -> tuple[int, float]:
+        """(offset, GPS s) of the log's last RXM-RAWX frame; (size, inf) when none."""
+        back = _PROBE
+        while True:
+            start = max(0, self.size - back)
+            self.fh.seek(start)
+            buf = self.fh.read(self.size - start)
+            i, found = 0, None
+            while (i := buf.find(_HEAD, i)) >= 0:
+                if _rawx_frame_at(buf, i):
+                    found = i
+                i += 1
+            if found is not None:
+                return start + found, _time_s(buf, found)
+            if start == 0:
+                return self.size, math.inf
+            back *= 4
+
+
+def ubx_hours(path: str | Path, block_s: float, why: list | None = None) -> UbxHours | None:
+    """The log cut into blocks of ``block_s`` seconds of GPS time, or None when it cannot be (compressed, no
+    RXM-RAWX frame, epochs out of order at the ends; ``why``, if given, gets the reason).  Opening errors are the
+    reader's own (None: the whole reading names them)."""
+    p = Path(path)
+    try:
+        return _cut(p, block_s)
+    except NotCut as exc:
+        if why is not None:
+            why.append(f"{p.name}: {exc}")
+        return None
+
+
+def _cut(p: Path, block_s: float) -> UbxHours:
+    try:
+        size = p.stat().st_size
+        fh = open(p, "rb")
+    except OSError:
+        raise NotCut("cannot be opened") from None
+    with fh:
+        if fh.read(2) == b"\x1f\x8b":
+            raise NotCut("compressed")
+        probe = _Probe(fh, size)
+        e0, t0 = probe.at_or_after(0)
+        e1, t1 = probe.last()
+        if not (math.isfinite(t0) and math.isfinite(t1)) or t1 < t0:
+            raise NotCut("its RXM-RAWX epochs")
+        k0, k1 = math.floor(t0 / block_s), math.floor(t1 / block_s)
+        starts = [0] + [probe.first_from(k * block_s, size) for k in range(k0 + 1, k1 + 1)] + [size]
+        firsts = [t0] + [probe.at_or_after(a)[1] for a in starts[1:-1]]
+    blocks = [(k, a, b, t) for k, a, b, t in zip(range(k0, k1 + 1), starts[:-1], starts[1:], firsts) if b > a]
+    if any(not math.isfinite(t) for *_, t in blocks):
+        raise NotCut("its RXM-RAWX epochs")
+    return UbxHours(p, blocks, block_s, t0, t1)
+
+
+def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float | None) -> None:
+    """NotCut unless block ``j`` (``block``: :func:`cdgps_cli.io.ubx.read_ubx_block` of its bytes) is what the whole
+    log's reading holds of it: nothing lost or skipped (:data:`LOSS_COUNTS`), no ESF-MEAS message, every epoch in
+    the block and after the previous block's last (``previous_last_s``, GPS s)."""
+    k, a, _, _ = hours.blocks[j]
+    info, t = block["info"], block["time_s"]
+    if any(int(info.get(c) or 0) for c in LOSS_COUNTS):
+        raise NotCut(f"data lost or skipped in the block at byte {a}")
+    if info["message_counts"].get("ESF-MEAS"):
+        raise NotCut("ESF-MEAS sensor messages")
+    if math.floor(float(t[0]) / hours.block_s) != k or math.floor(float(t[-1]) / hours.block_s) != k:
+        raise NotCut(f"an epoch outside its block (byte {a})")
+    if previous_last_s is not None and not float(t[0]) > previous_last_s:
+        raise NotCut(f"epochs out of order between blocks (byte {a})")
+
+
+def join_ubx_infos(infos: list) -> dict:
+    """The read summary of the whole log (:func:`cdgps_cli.io.ubx.read_ubx_log`'s ``info`` but ``sfrbx`` and
+    ``rtcm_base``) from its blocks' (:func:`check_ubx_block`: none lost anything), in log order: the counts summed,
+    the satellites joined, the week the first block's, the leap seconds the last block's that knows them."""
+    out = dict(infos[0])
+    out["message_counts"] = _summed([i["message_counts"] for i in infos], key=str)
+    out["signal_counts"] = _summed([i["signal_counts"] for i in infos], key=str)
+    for k in ("n_frames", "n_epochs", "n_clock_resets", "nmea_bytes", "nmea_sentences", "rtcm_bytes", *LOSS_COUNTS):
+        out[k] = sum(int(i[k]) for i in infos)
+    out["gps_satellites"] = sorted(set().union(*(i["gps_satellites"] for i in infos)))
+    out["leap_seconds"] = next((i["leap_seconds"] for i in reversed(infos) if i["leap_seconds"] is not None), None)
+    out["rtcm_frames"] = {str(k): v for k, v in _summed([{int(t): c for t, c in i["rtcm_frames"].items()}
+                                                         for i in infos], key=int).items()}
+    return out
+
+
+def _summed(dicts: list, key) -> dict:
+    total: dict = {}
+    for d in dicts:
+        for k, v in d.items():
+            total[k] = total.get(k, 0) + int(v)
+    return dict(sorted(total.items(), key=lambda kv: key(kv[0])))
+
