@@ -1,19 +1,22 @@
-"""A GNSS ingest of long RINEX files, hour by hour, in bounded memory (issue 29).
+"""A GNSS ingest of long RINEX and u-blox UBX files, hour by hour, in bounded memory (issue 29).
 
-A 10 Hz pair read whole held ≈ 3 GB for a day (the files' text, their tables and the messages built from them).
-When every receiver is plain RINEX 3 — one file, or consecutive files of one record that do not overlap (a day
-as hourly files) — (:func:`cdgps_cli.io.rinex_hours.rinex_hours`), the ingest reads each receiver's files one block
-of GPS time at a time (:data:`cdgps_cli.io.gnss_archive.OBS_BLOCK_S`, the blocks of
-the RUN's observation archives): :func:`hourly_inputs` returns the inputs and the generator of the blocks' tables
-that :func:`cdgps_cli.io.gnss_run.write_gnss_run_blocks` writes as they come.  What the checks and the summaries
-need of the whole record is kept in thin tables (:class:`ThinTables`: time, satellite, signal, whether a phase and
-a code are there, loss of lock; ≈ 18 bytes a row), which become the receivers' ``raw`` and ``signals`` once the last
-block is read, with the header the whole file's reading gives (:func:`~cdgps_cli.io.rinex_hours.join_obs_headers`;
-several files joined by :func:`~cdgps_cli.io.gnss_sequence.join_receivers`, as the whole reading joins them).
+A 10 Hz pair read whole held ≈ 3 GB for a day (the files' text or bytes, their tables and the messages built from
+them).  When every receiver is plain RINEX 3 or an uncompressed UBX log — one file, or consecutive files of one record
+that do not overlap (a day as hourly files) — (:func:`cdgps_cli.io.rinex_hours.rinex_hours`,
+:func:`cdgps_cli.io.ubx_hours.ubx_hours`), the ingest reads each receiver's files one block of GPS time at a time
+(:data:`cdgps_cli.io.gnss_archive.OBS_BLOCK_S`, the blocks of the RUN's observation archives): :func:`hourly_inputs`
+returns the inputs and the generator of the blocks' tables that :func:`cdgps_cli.io.gnss_run.write_gnss_run_blocks`
+writes as they come.  What the checks and the summaries need of the whole record is kept in thin tables
+(:class:`ThinTables`: time, satellite, signal, whether a phase and a code are there, loss of lock — a UBX log's lock
+times and half-cycle status —; ≈ 18 bytes a row), which become the receivers' ``raw`` and ``signals`` once the last
+block is read, with the header the whole file's reading gives (:func:`~cdgps_cli.io.rinex_hours.join_obs_headers`,
+:func:`~cdgps_cli.io.ubx_hours.join_ubx_infos` and the log's RXM-SFRBX ephemerides; several files joined by
+:func:`~cdgps_cli.io.gnss_sequence.join_receivers`, as the whole reading joins them).
 
-The RUN written is the one the whole-file ingest writes, byte for byte (``tests/io/test_gnss_hours.py``).  Anything
-the blocks cannot give exactly as the whole file (:class:`~cdgps_cli.io.rinex_hours.NotCut`) and every error is
-left to the whole-file ingest, which the caller then runs: its errors are the ones users see.
+The RUN written is the one the whole-file ingest writes, byte for byte (``tests/io/test_gnss_hours.py``,
+``tests/io/test_ubx_hours.py``).  Anything the blocks cannot give exactly as the whole file
+(:class:`~cdgps_cli.io.rinex_hours.NotCut`) and every error is left to the whole-file ingest, which the caller then
+runs: its errors are the ones users see.
 """
 
 from __future__ import annotations
@@ -99,7 +102,7 @@ def new_codes() -> dict:
 def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: dict | None = None, nav_paths=None,
                   master: str | None = None, progress=None, why: list | None = None):
     """(:class:`~cdgps_cli.io.gnss_run.IngestInputs`, the blocks' generator, the mapped files) of an ingest whose
-    receivers are each plain RINEX 3 files — one, or consecutive files of one record that do not overlap (the
+    receivers are each plain RINEX 3 files or UBX logs — one, or consecutive files of one record that do not overlap (the
     parameters of :func:`cdgps_cli.pipeline.gnss_ingest.ingest_gnss`); None for any other ingest, or any error (the
     whole-file ingest then reads the files, and names it; ``why``, if given, gets the reason).  ``inputs.receivers``
     is filled as the generator ends; close the mapped files (``.close()``) when done."""
