@@ -100,7 +100,7 @@ def new_codes() -> dict:
 
 
 def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: dict | None = None, nav_paths=None,
-                  master: str | None = None, progress=None, why: list | None = None):
+                  master: str | None = None, progress=None, why: list | None = None, strict: bool = False):
     """(:class:`~cdgps_cli.io.gnss_run.IngestInputs`, the blocks' generator, the mapped files) of an ingest whose
     receivers are each plain RINEX 3 files or UBX logs — one, or consecutive files of one record that do not overlap (the
     parameters of :func:`cdgps_cli.pipeline.gnss_ingest.ingest_gnss`); None for any other ingest, or any error (the
@@ -142,7 +142,7 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
         return None
     inp = g.IngestInputs(files, master, nav_list, {}, nav, {}, warnings, nav_source, pieces, None)
     keys = sorted({k for cut in hours.hours.values() for h in cut for k, *_ in h.blocks})
-    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, keys, given, glonass_k, say), len(keys)), hours
+    return inp, g.Blocks(_blocks(cfg, inp, hours.hours, keys, given, glonass_k, say, strict), len(keys)), hours
 
 
 def _cut_record(paths: list, kind: str, why: list) -> list | None:
@@ -192,17 +192,17 @@ def _empty_tables(signals, kind: str = "rinex") -> tuple:
     return raw, (pd.DataFrame({c: np.zeros(0) for c in SIGNAL_COLUMNS}) if signals else None)
 
 
-def _checked(hours, j: int, info: dict, previous_last_s: float | None) -> float:
+def _checked(hours, j: int, info: dict, previous_last_s: float | None, strict: bool) -> float:
     """The last epoch (GPS s) of block ``j`` of a file, checked to be what the whole file's reading holds of it
     (:func:`~cdgps_cli.io.rinex_hours.check_block`, :func:`~cdgps_cli.io.ubx_hours.check_ubx_block`; NotCut)."""
     if hours.kind == "ubx":
-        check_ubx_block(hours, j, info, previous_last_s)
+        check_ubx_block(hours, j, info, previous_last_s, strict)
         return float(info["time_s"][-1])
     check_block(hours, j, info, previous_last_s)
     return info["time_last_obs_gps_s"]
 
 
-def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_k: dict, say):
+def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_k: dict, say, strict: bool = False):
     """For each block of GPS time: [(raw rows, signal rows or None)] per receiver (master first; a receiver's
     files' rows in that block joined); at the end the receivers (thin tables, the whole reading's header and
     joins) in ``inp.receivers`` and ``inp.joins``, the reading's warnings first in ``inp.warnings``.  NotCut or
@@ -226,7 +226,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
         block = []
         for n, parts in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k)):
             for f, j, (raw, sig, info) in parts:
-                last[n] = _checked(hours[n][f], j, info, last[n])
+                last[n] = _checked(hours[n][f], j, info, last[n], strict)
                 infos[n][f].append(info)
                 thin[n][f].add(raw, sig)
             block.append(_joined(parts) if parts else _empty_tables(cfg.signals, _kind(hours[n])))
@@ -303,6 +303,8 @@ def _receiver(cfg: GnssConfig, inp, n: str, cut: list, given: list, infos: list,
     if len(rxs) == 1:
         rx = rxs[0]
     else:
+        if any(rx.info.get("truncated_tail_bytes") for rx in rxs[:-1]):
+            raise NotCut("a frame cut by the file rotation")     # (the whole reading joins it again across the files)
         by_given = sorted(range(len(cut)), key=lambda i: cut[i].order)
         nav = _joined_sfrbx([infos[i] for i in by_given], [rxs[i] for i in by_given]) if _kind(cut) == "ubx" else None
         rx, joins[n], w, order = g.join_receivers(n, [rxs[i] for i in by_given], given, ubx_nav=nav)
@@ -330,7 +332,7 @@ def _ubx_file(n: str, h, inf: list, raw: pd.DataFrame) -> g.GnssReceiver:
     the whole log.  NotCut for a log without GPS L1 C/A (the whole reading refuses it, naming what it holds)."""
     if not len(raw):
         raise NotCut("no GPS L1 C/A measurements")
-    info_u = join_ubx_infos([b["info"] for b in inf])
+    info_u = join_ubx_infos([b["info"] for b in inf], [a for _, a, _, _ in h.blocks])
     nav, info_u["sfrbx"] = sfrbx_of_blocks(b"".join(b["sfrbx"] for b in inf), info_u["week"])
     info_u["rtcm_base"] = rtcm_station_arp([r for b in inf for r in b["rtcm_arp"]])
     header, info = g.ubx_header_info(h.path, n, info_u, raw)

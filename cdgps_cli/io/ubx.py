@@ -672,8 +672,10 @@ def read_ubx_block(path: str | Path, data: bytes, signals=()) -> dict:
         ``obs`` (the GPS L1 C/A table of :func:`read_ubx_log`; may be empty), ``signals`` (the table of
         :func:`read_ubx_signals` of ``signals``, or None without any), ``info`` (its ``info`` but ``sfrbx`` and
         ``rtcm_base``), ``time_s`` (the epochs' GPS s, in log order), ``sfrbx`` (the bytes of its RXM-SFRBX /
-        RXM-SFRB frames, in log order) and ``rtcm_arp`` (its RTCM 3 1005/1006 frames, as
-        :func:`~cdgps_cli.io.ubx_frames.rtcm_station_arp` takes them).
+        RXM-SFRB frames, in log order), ``rtcm_arp`` (its RTCM 3 1005/1006 frames, as
+        :func:`~cdgps_cli.io.ubx_frames.rtcm_station_arp` takes them) and ``clean_tail`` (whether the bytes after
+        its last UBX or RTCM frame are NMEA sentences only: a framing of the log that goes on past them then
+        reads what this one read).
 
     Raises
     ------
@@ -687,7 +689,17 @@ def read_ubx_block(path: str | Path, data: bytes, signals=()) -> dict:
     obs, gps_sats = _l1_table(p, meas, t, reset, (code == 0).nonzero()[0])
     info = _log_info(p, epochs, gps_sats, _signal_counts(meas, code), counts, len(off), stats, undecodable)
     return {"obs": obs, "signals": _signal_table(meas, t, signals) if signals else None, "info": info, "time_s": t,
-            "sfrbx": _sfrbx_bytes(data, off, end), "rtcm_arp": [r for r in rtcm if r[1] in (1005, 1006)]}
+            "sfrbx": _sfrbx_bytes(data, off, end), "rtcm_arp": [r for r in rtcm if r[1] in (1005, 1006)],
+            "clean_tail": _clean_tail(data, max([int(end[-1]) if end.size else 0] + [k + len(f) for k, _, f in rtcm[-1:]]))}
+
+
+def _clean_tail(data: bytes, last_end: int) -> bool:
+    """Whether ``data[last_end:]`` is NMEA sentences only (nothing skipped, cut or failing a check)."""
+    if last_end >= len(data):
+        return True
+    off, _, rtcm, stats = split_stream_spans(data[last_end:])
+    return not (off.size or rtcm or stats["skipped_bytes"] or stats["truncated_tail_bytes"]
+                or stats["bad_checksum_frames"] or stats["bad_crc_rtcm_frames"])
 
 
 def empty_signal_table() -> pd.DataFrame:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cdgps_cli.io.rinex_hours import NotCut
+from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN
 
 __all__ = ["UbxHours", "ubx_hours", "check_ubx_block", "join_ubx_infos", "LOSS_COUNTS"]
 
@@ -184,14 +185,19 @@ def _cut(p: Path, block_s: float) -> UbxHours:
     return UbxHours(p, blocks, block_s, t0, t1)
 
 
-def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float | None) -> None:
+def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float | None, strict: bool = False) -> None:
     """NotCut unless block ``j`` (``block``: :func:`cdgps_cli.io.ubx.read_ubx_block` of its bytes) is what the whole
-    log's reading holds of it: nothing lost or skipped (:data:`LOSS_COUNTS`), no ESF-MEAS message, every epoch in
-    the block and after the previous block's last (``previous_last_s``, GPS s)."""
+    log's reading holds of it: a block but the log's last ends in whole frames (no truncated tail; after its last
+    frame NMEA sentences only, so that a framing of the whole log leaves it where the next block begins), no
+    ESF-MEAS message, every epoch in the block and after the previous block's last (``previous_last_s``, GPS s);
+    with ``strict`` (``ingest --strict``), nothing lost or skipped (:data:`LOSS_COUNTS`: the whole reading refuses
+    it, naming the losses)."""
     k, a, _, _ = hours.blocks[j]
     info, t = block["info"], block["time_s"]
-    if any(int(info.get(c) or 0) for c in LOSS_COUNTS):
-        raise NotCut(f"data lost or skipped in the block at byte {a}")
+    if strict and any(int(info.get(c) or 0) for c in LOSS_COUNTS):
+        raise NotCut("data lost or skipped, with --strict")
+    if j < len(hours.blocks) - 1 and (info["truncated_tail_bytes"] or not block["clean_tail"]):
+        raise NotCut(f"data lost or skipped at the end of the block before byte {hours.blocks[j][2]}")
     if info["message_counts"].get("ESF-MEAS"):
         raise NotCut("ESF-MEAS sensor messages")
     if math.floor(float(t[0]) / hours.block_s) != k or math.floor(float(t[-1]) / hours.block_s) != k:
@@ -200,11 +206,17 @@ def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float
         raise NotCut(f"epochs out of order between blocks (byte {a})")
 
 
-def join_ubx_infos(infos: list) -> dict:
+_OFFSETS = ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets")
+
+
+def join_ubx_infos(infos: list, starts: list) -> dict:
     """The read summary of the whole log (:func:`cdgps_cli.io.ubx.read_ubx_log`'s ``info`` but ``sfrbx`` and
-    ``rtcm_base``) from its blocks' (:func:`check_ubx_block`: none lost anything), in log order: the counts summed,
-    the satellites joined, the week the first block's, the leap seconds the last block's that knows them."""
+    ``rtcm_base``) from its blocks' (:func:`check_ubx_block`), in log order (``starts``: their first bytes in the
+    log): the counts summed, the satellites joined, the week the first block's, the leap seconds the last block's
+    that knows them, the first few byte offsets of the losses counted in the log."""
     out = dict(infos[0])
+    for k in _OFFSETS:
+        out[k] = [o + a for i, a in zip(infos, starts) for o in i[k]][:MAX_OFFSETS_SHOWN]
     out["message_counts"] = _summed([i["message_counts"] for i in infos], key=str)
     out["signal_counts"] = _summed([i["signal_counts"] for i in infos], key=str)
     for k in ("n_frames", "n_epochs", "n_clock_resets", "nmea_bytes", "nmea_sentences", "rtcm_bytes", *LOSS_COUNTS):

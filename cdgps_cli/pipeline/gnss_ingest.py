@@ -81,7 +81,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     say = progress or (lambda m: None)
     why: list[str] = []
     hourly = gnss_hours.hourly_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
-                                      progress=progress, why=why)
+                                      progress=progress, why=why, strict=strict)
     if hourly is not None:
         inp, blocks, mapped = hourly
         try:
@@ -273,28 +273,49 @@ def lock_obs(rx: GnssReceiver, signals) -> pd.DataFrame:
     """What :func:`lock_summary` counts of a receiver: the time, satellite, phase and loss-of-lock columns of
     :func:`anchor_obs`, in narrow types.  A RINEX receiver's are its anchor rows as recorded (its raw table or the
     anchor signal's rows: all a receiver read hour by hour keeps, :class:`cdgps_cli.io.gnss_hours.ThinTables`); a
-    UBX receiver's loss of lock comes from its lock times (:func:`ubx_loss_of_lock`, as :func:`anchor_obs` takes
-    it: of the raw table's lock times, or of the anchor signal's): the columns these need, all a UBX receiver read
-    hour by hour keeps."""
-    if rx.format == "ubx":
-        from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
+    UBX receiver's loss of lock comes from its lock times (:func:`ubx_loss_of_lock` of the raw table's rows or of
+    the anchor signal's, with the interval of all its signal rows, as :func:`anchor_obs` takes it), the satellites
+    as integer channels (a day's rows: no string per row)."""
+    if rx.format != "ubx":
+        r = _anchor_rows(rx, signals)
+        return pd.DataFrame({"time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64), "sat": r["sat"].array,
+                             "phase_l1_cycles": r["phase_cycles"].to_numpy(), "lli_l1": r["lli"].to_numpy()}, copy=False)
+    from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
 
-        name = anchor_signal(signals)
-        if name is None:
-            r = rx.raw
-            lli = ubx_loss_of_lock(r["time_gps_s"].to_numpy(), r["sat"].to_numpy(), r["phase_cycles"].to_numpy(),
-                                   r["lock_time_ms"].to_numpy(dtype=np.float64),
-                                   r["half_cycle"].to_numpy(dtype=np.int64) == 1)
-        else:
-            s = signal_obs(rx)
-            r = s[s["signal"].to_numpy() == name] if s is not None else pd.DataFrame(
-                {"time_gps_s": [], "sat": [], "phase_cycles": [], "lli": []})
-            lli = r["lli"].to_numpy(dtype=np.int64)
-        return pd.DataFrame({"time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64), "sat": r["sat"].to_numpy(),
-                             "phase_l1_cycles": r["phase_cycles"].to_numpy(), "lli_l1": lli}, copy=False)
-    r = _anchor_rows(rx, signals)
-    return pd.DataFrame({"time_gps_s": r["time_gps_s"].to_numpy(dtype=np.float64), "sat": r["sat"].to_numpy(),
-                         "phase_l1_cycles": r["phase_cycles"].to_numpy(), "lli_l1": r["lli"].to_numpy()}, copy=False)
+    name, interval_s, r = anchor_signal(signals), None, rx.raw
+    if name is not None:
+        s = rx.signals if rx.signals is not None else pd.DataFrame(
+            {"time_gps_s": [], "sat": [], "signal": [], "phase_cycles": [], "lli": []})
+        if "lock_time_ms" in s:
+            interval_s = nominal_interval_s(s["time_gps_s"].to_numpy())
+        r = s[s["signal"].to_numpy() == name]
+    t = r["time_gps_s"].to_numpy(dtype=np.float64)
+    if name is None or "lock_time_ms" in r:
+        lli = _ubx_lli(r, t, interval_s)
+    else:
+        lli = r["lli"].to_numpy(dtype=np.int64)
+    return pd.DataFrame({"time_gps_s": t, "sat": r["sat"].array, "phase_l1_cycles": r["phase_cycles"].to_numpy(),
+                         "lli_l1": lli}, copy=False)     # (the satellites as they are: a thin table's categorical)
+
+
+def _ubx_lli(r: pd.DataFrame, t: np.ndarray, interval_s: float | None) -> np.ndarray:
+    """:func:`ubx_loss_of_lock` of a UBX table's rows (``t``: their times), in groups of satellites of about
+    :data:`_UBX_LLI_ROWS_PER_PASS` rows (a channel's bits are its own: a day's rows are not all sorted at once, ≈ 170
+    bytes a row), with one nominal interval for all of them; int8."""
+    channel = pd.factorize(r["sat"], sort=True)[0].astype(np.int32)
+    phase, lock_ms, half = r["phase_cycles"].to_numpy(), r["lock_time_ms"].to_numpy(), r["half_cycle"].to_numpy()
+    interval_s = nominal_interval_s(t) if interval_s is None else interval_s
+    n = int(channel.max()) + 1 if channel.size else 0
+    lli = np.zeros(t.size, dtype=np.int8)
+    for a, b in _channel_groups(np.bincount(channel, minlength=n), _UBX_LLI_ROWS_PER_PASS):
+        g = np.flatnonzero((channel >= a) & (channel < b)) if (a, b) != (0, n) else slice(None)
+        lli[g] = ubx_loss_of_lock(t[g], channel[g], phase[g], lock_ms[g].astype(np.float64),
+                                  half[g].astype(np.int64) == 1, interval_s)
+    return lli
+
+
+_UBX_LLI_ROWS_PER_PASS = 500_000
+"""Rows :func:`_ubx_lli` gives :func:`ubx_loss_of_lock` at a time (whole satellites)."""
 
 
 def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
@@ -326,12 +347,13 @@ _LOCK_ROWS_PER_PASS = 2_000_000
 """Rows :func:`lock_summary` cuts into lock segments at a time (whole satellites; ≈ 60 bytes a row)."""
 
 
-def _channel_groups(rows: np.ndarray) -> list:
-    """Consecutive channel ranges [a, b) holding about :data:`_LOCK_ROWS_PER_PASS` rows each (a channel is never
-    split: its lock segments are its own)."""
+def _channel_groups(rows: np.ndarray, per_pass: int | None = None) -> list:
+    """Consecutive channel ranges [a, b) holding about ``per_pass`` rows each (default
+    :data:`_LOCK_ROWS_PER_PASS`; a channel is never split: its lock segments are its own)."""
+    per_pass = _LOCK_ROWS_PER_PASS if per_pass is None else per_pass
     out, a, acc = [], 0, 0
     for i, r in enumerate(rows.tolist()):
-        if acc and acc + r > _LOCK_ROWS_PER_PASS:
+        if acc and acc + r > per_pass:
             out.append((a, i))
             a, acc = i, 0
         acc += r

@@ -122,7 +122,7 @@ def test_the_blocks_join_to_the_whole_logs_reading(log, block_s):
         check_ubx_block(h, j, b, last)
         last = float(b["time_s"][-1])
         parts.append(b)
-    info = join_ubx_infos([b["info"] for b in parts])
+    info = join_ubx_infos([b["info"] for b in parts], [a for _, a, _, _ in h.blocks])
     nav, info["sfrbx"] = sfrbx_of_blocks(b"".join(b["sfrbx"] for b in parts), info["week"])
     info["rtcm_base"] = rtcm_station_arp([r for b in parts for r in b["rtcm_arp"]])
     w_info, w_obs, w_nav = read_ubx_log(log)
@@ -218,18 +218,55 @@ def _corrupt(data: bytes, at: int) -> bytes:
     return data[:at] + bytes([data[at] ^ 0xFF]) + data[at + 1:]
 
 
-def test_logs_the_blocks_cannot_give_are_read_whole(tmp_path, monkeypatch):
+def test_damaged_logs_block_by_block_are_the_whole_logs_run(tmp_path, monkeypatch):
+    """Losses inside the blocks (a frame failing its checksum, the log cut short) are counted as the whole reading
+    counts them, byte offsets in the log included; noise just before a block's first frame, where a framing of the
+    whole log could read across the cut, and a compressed log are read whole."""
     data = UBX_WALK.read_bytes()
     frames = _rawx_frames(data)
+    h = ubx_hours(UBX_WALK, 30.0)
+    cut = h.blocks[2][1]
     cases = {
-        "compressed": gzip.compress(data, mtime=0),
-        "a corrupt frame": _corrupt(data, frames[300][0] + 40),
-        "cut short": data[:frames[500][0] + 100],
+        "a corrupt frame": (_corrupt(data, frames[300][0] + 40), True),
+        "two corrupt frames and noise": (_corrupt(_corrupt(data, frames[10][0] + 3), frames[420][0] + 9)[:frames[200][0]]
+                                         + b"\xb5\x62\x02\x15\x00" + data[frames[200][0]:], True),
+        "cut short": (data[:frames[500][0] + 100], True),
+        "noise before a block": (data[:cut] + b"\xd3\x00\x13\x3e\xd0" + data[cut:], False),
+        "compressed": (gzip.compress(data, mtime=0), False),
     }
-    for what, content in cases.items():
+    for what, (content, by_blocks) in cases.items():
         (tmp_path / "log.ubx").write_bytes(content)
         how = _same_run(_config(tmp_path, {"walk": ("ubx", tmp_path / "log.ubx")}), tmp_path, monkeypatch)
-        assert not how["hour_by_hour"] and how["why_whole"], what
+        assert how["hour_by_hour"] == by_blocks, (what, how)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_random_damage_gives_the_whole_logs_run(tmp_path, monkeypatch, seed):
+    """Bytes flipped, dropped and inserted at random places of the log: block by block or whole, the same RUN
+    (more seeds in the session's note)."""
+    rng = np.random.default_rng(seed)
+    data = bytearray(UBX_WALK.read_bytes())
+    for at in sorted(rng.integers(0, len(data) - 1, 6).tolist(), reverse=True):
+        kind = rng.integers(3)
+        if kind == 0:
+            data[at] ^= int(rng.integers(1, 256))
+        elif kind == 1:
+            del data[at:at + int(rng.integers(1, 40))]
+        else:
+            data[at:at] = rng.integers(0, 256, int(rng.integers(1, 40))).astype(np.uint8).tobytes()
+    (tmp_path / "log.ubx").write_bytes(bytes(data))
+    _same_run(_config(tmp_path, {"walk": ("ubx", tmp_path / "log.ubx")}), tmp_path, monkeypatch, 20.0)
+
+
+def test_strict_refuses_a_damaged_log_as_whole(tmp_path, monkeypatch):
+    data = UBX_WALK.read_bytes()
+    (tmp_path / "log.ubx").write_bytes(_corrupt(data, _rawx_frames(data)[300][0] + 40))
+    cfg = load_gnss_config(_config(tmp_path, {"walk": ("ubx", tmp_path / "log.ubx")}))
+    with monkeypatch.context() as m:
+        m.setattr(gnss_archive, "OBS_BLOCK_S", 30.0)
+        with pytest.raises(gnss_ingest.CdgpsError, match=r"corrupt UBX data: 1 frame\(s\) failing the checksum \(byte offsets"):
+            gnss_ingest.ingest_gnss(cfg, tmp_path / "out.mcap", strict=True)
+    assert not (tmp_path / "out.mcap").exists()
 
 
 def _frame(cls: int, mid: int, payload: bytes) -> bytes:
@@ -271,7 +308,7 @@ def test_an_error_is_the_whole_logs_error(tmp_path, monkeypatch):
             _ingest(cfg, tmp_path / "old.mcap", False, monkeypatch, 30.0)
 
 
-def test_thin_ublox_tables_give_the_lock_counts(tmp_path):
+def test_thin_ublox_tables_give_the_lock_counts(tmp_path, monkeypatch):
     """The lock counters of a UBX receiver from its thin tables (time, satellite, phase, lock time, half cycle) are
     those of its whole tables, GPS L1 and anchored on another signal."""
     from cdgps_cli.io.gnss_run import read_receiver_file
@@ -289,3 +326,10 @@ def test_thin_ublox_tables_give_the_lock_counts(tmp_path):
         assert gnss_ingest.lock_summary(small, gnss_ingest.lock_obs(small, signals)) == want
         assert gnss_ingest.lock_summary(rx, gnss_ingest.lock_obs(rx, signals)) == want
     assert np.isin(["lock_time_ms", "half_cycle"], small.raw.columns).all()
+    r = rx.raw                         # in groups of satellites of 500 rows: the bits of all the rows at once
+    want = gnss_ingest.ubx_loss_of_lock(r["time_gps_s"].to_numpy(), r["sat"].to_numpy(), r["phase_cycles"].to_numpy(),
+                                        r["lock_time_ms"].to_numpy(dtype=float), r["half_cycle"].to_numpy() == 1)
+    monkeypatch.setattr(gnss_ingest, "_UBX_LLI_ROWS_PER_PASS", 500)
+    assert len(gnss_ingest._channel_groups(np.bincount(pd.factorize(r["sat"])[0]), 500)) > 5
+    for tab in (r, small.raw):
+        assert np.array_equal(gnss_ingest._ubx_lli(tab, tab["time_gps_s"].to_numpy(), None), want)
