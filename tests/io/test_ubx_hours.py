@@ -210,6 +210,41 @@ def test_a_ublox_log_across_a_gps_week(tmp_path, monkeypatch):
     assert how["hour_by_hour"]
 
 
+def _rtcm(mtype: int, payload_bits: list) -> bytes:
+    """An RTCM 3 frame of message ``mtype`` with the fields ``payload_bits`` [(value, bits)] after its number."""
+    from cdgps_cli.io.ubx_frames import crc24q
+
+    v, n = mtype, 12
+    for value, bits in payload_bits:
+        v, n = (v << bits) | (value & ((1 << bits) - 1)), n + bits
+    n_bytes = (n + 7) // 8
+    body = (v << (8 * n_bytes - n)).to_bytes(n_bytes, "big")
+    head = bytes([0xD3, n_bytes >> 8, n_bytes & 0xFF]) + body
+    return head + crc24q(head).to_bytes(3, "big")
+
+
+def test_a_base_log_with_rtcm_between_its_frames(tmp_path, monkeypatch):
+    """A base's log with RTCM 3 between its frames (a station position 1005 every 100 epochs, an MSM-sized 1077 after
+    every epoch), one block ending in an RTCM frame: the same RUN, the station position the last 1005's."""
+    x, y, z = (round(c * 1e4) for c in WALK_XYZ)
+    st = _rtcm(1005, [(42, 12), (0, 6), (1, 4), (x, 38), (0, 2), (y, 38), (0, 2), (z, 38)])
+    msm = _rtcm(1077, [(42, 12), (123456, 30)] + [(7, 8)] * 40)
+    data = UBX_WALK.read_bytes()
+    frames = _rawx_frames(data)
+    h = ubx_hours(UBX_WALK, 30.0)
+    cut = h.blocks[2][1]
+    out, at = [], 0
+    for i, (off, _) in enumerate(frames[1:], 1):
+        out += [data[at:off], msm + (st if i % 100 == 0 or off == cut else b"")]
+        at = off
+    (tmp_path / "base.ubx").write_bytes(b"".join(out + [data[at:]]))
+    how = _same_run(_config(tmp_path, {"base": ("ubx", tmp_path / "base.ubx")}), tmp_path, monkeypatch)
+    assert how["hour_by_hour"]
+    s, _ = _ingest(_config(tmp_path, {"base": ("ubx", tmp_path / "base.ubx")}), tmp_path / "again.mcap", False,
+                   monkeypatch, 30.0)
+    assert s["receivers"][0]["position_source"].startswith("RTCM 1005") and s["integrity"]["base"]["problems"] == []
+
+
 # ------------------------------------------------------------------------------------------------
 # what the blocks cannot give: read whole
 
