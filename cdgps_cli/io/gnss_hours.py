@@ -43,9 +43,12 @@ from cdgps_cli.io.ubx_hours import check_ubx_block, join_ubx_infos, ubx_hours
 
 __all__ = ["hourly_inputs", "ThinTables", "NotCut"]
 
-_THIN_RAW = {"time_gps_s": np.float64, "phase_cycles": np.float32, "pseudorange_m": np.float32, "lli": np.int8}
-_THIN_SIGNALS = {"time_gps_s": np.float64, "phase_cycles": np.float32, "lli": np.int8}
-_THIN_UBX = {"lock_time_ms": np.int32, "half_cycle": np.int8}
+_THERE = "there"
+"""A column of which the checks read only whether a value is there: kept as 0 (there) or NaN (none), float16."""
+_THIN_RAW = {"time_gps_s": np.float64, "phase_cycles": _THERE, "pseudorange_m": _THERE, "lli": np.int8}
+_THIN_SIGNALS = {"time_gps_s": np.float64, "phase_cycles": _THERE, "lli": np.int8}
+_THIN_UBX = {"lock_time_ms": np.uint16, "half_cycle": np.int8}
+"""(RXM-RAWX lock times are 16-bit: ms, capped at 64500.)"""
 """A UBX receiver's columns besides: its loss of lock comes from its lock times and half-cycle status."""
 
 
@@ -70,11 +73,13 @@ class ThinTables:
 
     @staticmethod
     def _thin(tab: pd.DataFrame, dtypes: dict, text: dict) -> dict:
-        out = {c: tab[c].to_numpy().astype(dt) for c, dt in dtypes.items()}
+        out = {c: _there(tab[c].to_numpy(dtype=np.float64)) if dt == _THERE else tab[c].to_numpy().astype(dt)
+               for c, dt in dtypes.items()}
         for c, table in text.items():
             codes, uniques = pd.factorize(tab[c].to_numpy(dtype=object))
             glob = np.array([table.setdefault(u, len(table)) for u in uniques.tolist()], dtype=np.int32)
-            out[c] = glob[codes] if codes.size else np.zeros(0, dtype=np.int32)
+            out[c] = (glob[codes] if codes.size else np.zeros(0, dtype=np.int32)).astype(
+                np.int16 if len(table) < 2**15 else np.int32)
         return out
 
     def frame(self, kind: str) -> pd.DataFrame | None:
@@ -92,6 +97,13 @@ class ThinTables:
             cols[c] = v
         parts.clear()
         return pd.DataFrame(cols, copy=False)
+
+
+def _there(v: np.ndarray) -> np.ndarray:
+    """0 where ``v`` has a value, NaN where not (float16: :data:`_THERE`)."""
+    out = np.zeros(v.size, dtype=np.float16)
+    out[~np.isfinite(v)] = np.nan
+    return out
 
 
 def new_codes() -> dict:
@@ -362,6 +374,6 @@ def _sfrbx_ahead(hours: dict, files: dict, say) -> dict:
         if _kind(cut) == "ubx":
             say(f"reading the RXM-SFRBX frames of {files[n][1]} ({n}) …")
             frames = b"".join(sfrbx_frames(h.block_bytes(j)) for h in cut for j in range(len(h.blocks)))
-            nav = sfrbx_of_blocks(frames, int(cut[0].first_s // 604800))[0]
+            nav = sfrbx_of_blocks(frames, cut[0].first_week)[0]
         out[n] = SimpleNamespace(format=_kind(cut), nav=nav)
     return out

@@ -198,7 +198,8 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
     meas : structured array, one per measurement
         :data:`_RAWX_MEAS` fields plus ``epoch`` (index into ``epochs``).
     undecodable : list of int
-        Byte offsets of checksum-valid frames whose payload is not 16 + 32·numMeas bytes long.
+        Byte offsets of checksum-valid frames whose payload is not 16 + 32·numMeas bytes long, lists one
+        signal twice, or whose rcvTow is not a finite number.
     """
     num = x[np.minimum(off + 17, x.size - 1)].astype(np.int64)           # numMeas, where the payload has it
     ok = (n_payload >= 16) & (n_payload == 16 + 32 * num)
@@ -209,10 +210,10 @@ def _decode_rawx(x: np.ndarray, off: np.ndarray, n_payload: np.ndarray) -> tuple
     rows[:, 16:] = off.astype("<i8").view(np.uint8).reshape(-1, 8)
     epochs = rows.view(_RAWX_EPOCH)[:, 0]
     meas, forged = _rawx_rows(x, off, num)
-    if forged.size:       # a frame listing one signal twice is not what a receiver writes (issue 32)
-        undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][forged]])
-        keep = np.ones(len(epochs), bool)
-        keep[forged] = False
+    keep = np.isfinite(epochs["rcvTow"])      # a time of week that is no number places the epoch nowhere
+    keep[forged] = False                      # a frame listing one signal twice is not what a receiver writes (issue 32)
+    if not keep.all():
+        undecodable = sorted(undecodable + [int(o) for o in epochs["offset"][~keep]])
         new_index = np.cumsum(keep) - 1
         meas = meas[keep[meas["epoch"]]]
         meas["epoch"] = new_index[meas["epoch"]]

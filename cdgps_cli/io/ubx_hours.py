@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import math
 import struct
+
+import numpy as np
 from dataclasses import dataclass
 from pathlib import Path
 
 from cdgps_cli.io.rinex_hours import NotCut
-from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN
+from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, _Fletcher, _rtcm_at
 
 __all__ = ["UbxHours", "ubx_hours", "check_ubx_block", "join_ubx_infos", "LOSS_COUNTS"]
 
@@ -34,6 +36,8 @@ _HEAD = b"\xb5\x62\x02\x15"
 _PROBE = 1 << 14
 """Bytes a probe reads at a time (an RXM-RAWX frame is at most 8 + 16 + 32·255 bytes)."""
 _MAX_FRAME = 8 + 16 + 32 * 255
+_BACK = 1 << 20
+"""Bytes :meth:`_Probe.last` looks back at a time."""
 
 LOSS_COUNTS = ("bad_checksum_frames", "undecodable_frames", "truncated_tail_bytes", "skipped_bytes",
                "bad_crc_rtcm_frames")
@@ -54,6 +58,8 @@ class UbxHours:
     order: int = 0
     """The log's place in the list it was given in (a record of several logs, :mod:`cdgps_cli.io.gnss_hours`)."""
     kind: str = "ubx"
+    first_week: int = 0
+    """The GPS week field of its first RXM-RAWX frame (the week the whole reading decodes its RXM-SFRBX frames in)."""
 
     def block_bytes(self, j: int) -> bytes:
         """The bytes of block ``j``, read from the log."""
@@ -131,22 +137,22 @@ class _Probe:
         return e
 
     def last(self) -> tuple[int, float]:
-        """(offset, GPS s) of the log's last RXM-RAWX frame; (size, inf) when none."""
-        back = _PROBE
-        while True:
-            start = max(0, self.size - back)
+        """(offset, GPS s) of the log's last RXM-RAWX frame, looking back from the end a window at a time (a long
+        tail without one is not read at once); (size, inf) when none."""
+        end = self.size
+        while end > 0:
+            start = max(0, end - _BACK)
             self.fh.seek(start)
-            buf = self.fh.read(self.size - start)
+            buf = self.fh.read(min(self.size, end + _MAX_FRAME) - start)
             i, found = 0, None
-            while (i := buf.find(_HEAD, i)) >= 0:
+            while 0 <= (i := buf.find(_HEAD, i)) < end - start:
                 if _rawx_frame_at(buf, i):
                     found = i
                 i += 1
             if found is not None:
                 return start + found, _time_s(buf, found)
-            if start == 0:
-                return self.size, math.inf
-            back *= 4
+            end = start
+        return self.size, math.inf
 
 
 def ubx_hours(path: str | Path, block_s: float, why: list | None = None) -> UbxHours | None:
@@ -176,13 +182,28 @@ def _cut(p: Path, block_s: float) -> UbxHours:
         e1, t1 = probe.last()
         if not (math.isfinite(t0) and math.isfinite(t1)) or t1 < t0:
             raise NotCut("its RXM-RAWX epochs")
-        k0, k1 = math.floor(t0 / block_s), math.floor(t1 / block_s)
-        starts = [0] + [probe.first_from(k * block_s, size) for k in range(k0 + 1, k1 + 1)] + [size]
-        firsts = [t0] + [probe.at_or_after(a)[1] for a in starts[1:-1]]
-    blocks = [(k, a, b, t) for k, a, b, t in zip(range(k0, k1 + 1), starts[:-1], starts[1:], firsts) if b > a]
-    if any(not math.isfinite(t) for *_, t in blocks):
-        raise NotCut("its RXM-RAWX epochs")
-    return UbxHours(p, blocks, block_s, t0, t1)
+        blocks = _blocks(probe, t0, t1, block_s)
+        fh.seek(e0 + 14)
+        week = int.from_bytes(fh.read(2), "little")
+    return UbxHours(p, blocks, block_s, t0, t1, first_week=week)
+
+
+def _blocks(probe: _Probe, t0: float, t1: float, block_s: float) -> list:
+    """The blocks of a log whose first and last RXM-RAWX epochs are at ``t0`` and ``t1`` (GPS s): one bisection for
+    each block that holds an epoch, from one block's first epoch straight to the next (a record with days between
+    two epochs, or a first epoch with a wrong week, costs no bisection per empty hour)."""
+    blocks, a, t, k1 = [], 0, t0, math.floor(t1 / block_s)
+    while True:
+        k = math.floor(t / block_s)
+        b = probe.first_from((k + 1) * block_s, probe.size) if k < k1 else probe.size
+        if b <= a:
+            raise NotCut("RXM-RAWX epochs out of time order")
+        blocks.append((k, a, b, t))
+        if b >= probe.size:
+            return blocks
+        a, t = b, probe.at_or_after(b)[1]
+        if not math.isfinite(t) or math.floor(t / block_s) <= k:
+            raise NotCut("RXM-RAWX epochs out of time order")
 
 
 def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float | None, strict: bool = False) -> None:
@@ -192,21 +213,46 @@ def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float
     ESF-MEAS message, every epoch in the block and after the previous block's last (``previous_last_s``, GPS s);
     with ``strict`` (``ingest --strict``), nothing lost or skipped (:data:`LOSS_COUNTS`: the whole reading refuses
     it, naming the losses)."""
-    k, a, _, _ = hours.blocks[j]
+    k, a, cut, _ = hours.blocks[j]
     info, t = block["info"], block["time_s"]
     if strict and any(int(info.get(c) or 0) for c in LOSS_COUNTS):
         raise NotCut("data lost or skipped, with --strict")
-    if j < len(hours.blocks) - 1 and (info["truncated_tail_bytes"] or not block["clean_tail"]):
-        raise NotCut(f"data lost or skipped at the end of the block before byte {hours.blocks[j][2]}")
+    if j < len(hours.blocks) - 1 and (info["truncated_tail_bytes"] or not block["clean_tail"]
+                                      or _frame_across(hours.path, cut)):
+        raise NotCut(f"data lost or skipped at the end of the block before byte {cut}")
+    if not np.isfinite(t).all() or (np.floor(t / hours.block_s) != k).any():
+        raise NotCut(f"an epoch outside its block (byte {a})")
     if info["message_counts"].get("ESF-MEAS"):
         raise NotCut("ESF-MEAS sensor messages")
-    if math.floor(float(t[0]) / hours.block_s) != k or math.floor(float(t[-1]) / hours.block_s) != k:
-        raise NotCut(f"an epoch outside its block (byte {a})")
     if previous_last_s is not None and not float(t[0]) > previous_last_s:
         raise NotCut(f"epochs out of order between blocks (byte {a})")
 
 
 _OFFSETS = ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets")
+
+
+def _frame_across(path: Path, cut: int) -> bool:
+    """Whether a whole UBX frame (right checksum) or RTCM 3 frame (right CRC) starts before byte ``cut`` of the log
+    and ends after it: a framing of the whole log would read it, and not the frames the block after the cut begins
+    with (e.g. a frame carrying frames in its payload)."""
+    lo = max(0, cut - 8 - 0xFFFF)
+    with open(path, "rb") as fh:
+        fh.seek(lo)
+        buf = fh.read(cut + 8 + 0xFFFF - lo)
+    at, checksum = cut - lo, _Fletcher(buf)
+    i = 0
+    while 0 <= (i := buf.find(b"\xb5\x62", i)) < at:
+        end = i + 8 + int.from_bytes(buf[i + 4:i + 6], "little") if i + 6 <= len(buf) else 0
+        if at < end <= len(buf) and checksum(i + 2, end - 2) == buf[end - 2:end]:
+            return True
+        i += 1
+    i = max(0, at - 6 - 0x3FF)
+    while 0 <= (i := buf.find(b"\xd3", i)) < at:
+        end, _, ok = _rtcm_at(buf, i)
+        if ok and end > at:
+            return True
+        i += 1
+    return False
 
 
 def join_ubx_infos(infos: list, starts: list) -> dict:

@@ -96,6 +96,11 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
         except CdgpsError:                # (named by the whole reading: the file's own line, not a block's)
             why.append("an error in a block, named by the whole reading")
             say("an error in a block of the files: reading them whole, which names it …")
+        except MemoryError:
+            raise
+        except Exception as exc:          # noqa: BLE001 (what the whole reading makes of it is what users get)
+            why.append(f"the hour-by-hour reading failed ({type(exc).__name__}: {exc})")
+            say(f"reading block by block failed ({type(exc).__name__}): reading the files whole …")
         finally:
             mapped.close()
     inp = gnss_run.read_ingest_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
@@ -300,22 +305,18 @@ def lock_obs(rx: GnssReceiver, signals) -> pd.DataFrame:
 
 def _ubx_lli(r: pd.DataFrame, t: np.ndarray, interval_s: float | None) -> np.ndarray:
     """:func:`ubx_loss_of_lock` of a UBX table's rows (``t``: their times), in groups of satellites of about
-    :data:`_UBX_LLI_ROWS_PER_PASS` rows (a channel's bits are its own: a day's rows are not all sorted at once, ≈ 170
+    :data:`_LOCK_ROWS_PER_PASS` rows (a channel's bits are its own: a day's rows are not all sorted at once, ≈ 170
     bytes a row), with one nominal interval for all of them; int8."""
     channel = pd.factorize(r["sat"], sort=True)[0].astype(np.int32)
     phase, lock_ms, half = r["phase_cycles"].to_numpy(), r["lock_time_ms"].to_numpy(), r["half_cycle"].to_numpy()
     interval_s = nominal_interval_s(t) if interval_s is None else interval_s
     n = int(channel.max()) + 1 if channel.size else 0
     lli = np.zeros(t.size, dtype=np.int8)
-    for a, b in _channel_groups(np.bincount(channel, minlength=n), _UBX_LLI_ROWS_PER_PASS):
+    for a, b in _channel_groups(np.bincount(channel, minlength=n)):
         g = np.flatnonzero((channel >= a) & (channel < b)) if (a, b) != (0, n) else slice(None)
         lli[g] = ubx_loss_of_lock(t[g], channel[g], phase[g], lock_ms[g].astype(np.float64),
                                   half[g].astype(np.int64) == 1, interval_s)
     return lli
-
-
-_UBX_LLI_ROWS_PER_PASS = 500_000
-"""Rows :func:`_ubx_lli` gives :func:`ubx_loss_of_lock` at a time (whole satellites)."""
 
 
 def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
@@ -328,6 +329,7 @@ def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
     t = o["time_gps_s"].to_numpy()[ph]
     lli = o["lli_l1"].to_numpy()[ph]
     codes, sats = pd.factorize(o["sat"][ph], sort=True)      # (a categorical column: its codes, no strings made)
+    codes = codes.astype(np.int32)
     interval = nominal_interval_s(t)
     max_step = 1.5 * interval if math.isfinite(interval) else np.inf
     n = len(sats)
@@ -343,8 +345,9 @@ def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
             for i, s in enumerate(sats)}
 
 
-_LOCK_ROWS_PER_PASS = 2_000_000
-"""Rows :func:`lock_summary` cuts into lock segments at a time (whole satellites; ≈ 60 bytes a row)."""
+_LOCK_ROWS_PER_PASS = 500_000
+"""Rows :func:`lock_summary` cuts into lock segments, and :func:`_ubx_lli` gives :func:`ubx_loss_of_lock`, at a time
+(whole satellites; ≈ 60 and ≈ 170 bytes a row)."""
 
 
 def _channel_groups(rows: np.ndarray, per_pass: int | None = None) -> list:

@@ -322,6 +322,57 @@ def test_a_log_with_esf_messages_is_read_whole(tmp_path, monkeypatch):
     assert not how["hour_by_hour"] and "ESF" in how["why_whole"]
 
 
+def _with_time(fr: bytes, t: float, week: int | None = None) -> bytes:
+    """An RXM-RAWX frame with its time set to ``t`` GPS s (or its week field to ``week``), checksum again."""
+    pl = bytearray(fr[6:-2])
+    w = int(t // 604800) if math.isfinite(t) else struct.unpack_from("<H", pl, 8)[0]
+    struct.pack_into("<dH", pl, 0, t - w * 604800.0, w if week is None else week)
+    return _frame(0x02, 0x15, bytes(pl))
+
+
+def test_what_a_review_found_is_read_as_whole(tmp_path, monkeypatch):
+    """A review's reproductions: a valid frame carrying frames in its payload just before a block's first RXM-RAWX
+    frame (a framing of the whole log reads the carrier, and not the RXM-RAWX frame inside it, which the cut found:
+    read whole); an epoch with a NaN time (now an undecodable frame, counted, in both readings: it was a traceback in
+    the writer); a first epoch in GPS week 0 or a year early (a bisection per block with an epoch, not one per hour
+    between): the whole reading's RUN or error."""
+    data = UBX_WALK.read_bytes()
+    frames = _rawx_frames(data)
+    h = ubx_hours(UBX_WALK, 7.0)
+    cut = h.blocks[3][1]
+    i = next(k for k, (o, _) in enumerate(frames) if o == cut)
+    inner = _with_time(data[cut:frames[i + 1][0]][:data[cut:].index(b"\xb5\x62", 2)], h.blocks[3][3] - 0.001)
+    carrier = _frame(0x21, 0x99, _frame(0x0A, 0x04, b"\x00" * 4) + inner)
+    nan_epoch = _with_time(data[frames[300][0]:frames[301][0]][:data[frames[300][0]:].index(b"\xb5\x62", 2)],
+                           float("nan"))
+    o0 = frames[0][0]
+    first = data[o0:o0 + 8 + int.from_bytes(data[o0 + 4:o0 + 6], "little")]
+    cases = {
+        "a frame across the cut": data[:cut] + carrier + data[cut:],
+        "a NaN time": data[:frames[300][0]] + nan_epoch + data[frames[300][0]:],
+        "week 0 first": data[:o0] + _with_time(first, frames[0][1], week=0) + data[o0 + len(first):],
+        "a year early first": data[:o0] + _with_time(first, frames[0][1] - 3.15e7) + data[o0 + len(first):],
+    }
+    for what, content in cases.items():
+        (tmp_path / "log.ubx").write_bytes(content)
+        cfg = _config(tmp_path, {"walk": ("ubx", tmp_path / "log.ubx")}, nav=[WALK / "gnss_1730_convbin.nav"])
+        got = []
+        for whole in (False, True):
+            try:
+                s, _ = _ingest(cfg, tmp_path / f"{whole}.mcap", whole, monkeypatch, 7.0)
+                got.append((s.pop("reading"), s.pop("output") and None, s, (tmp_path / f"{whole}.mcap").read_bytes()))
+            except gnss_ingest.CdgpsError as exc:
+                got.append(str(exc))
+        if isinstance(got[0], str) or isinstance(got[1], str):
+            assert got[0] == got[1], what
+        else:
+            assert got[0][2:] == got[1][2:], what
+            assert got[0][0]["hour_by_hour"] == (what != "a frame across the cut"), (what, got[0][0])
+            if what == "a NaN time":                 # (not a time: counted as an undecodable frame, as whole)
+                assert got[0][2]["integrity"]["walk"]["undecodable_frames"] == 1
+    assert len(ubx_hours(tmp_path / "log.ubx", 7.0).blocks) == len(h.blocks) + 1      # (the year early: one more)
+
+
 def test_an_error_is_the_whole_logs_error(tmp_path, monkeypatch):
     """An epoch out of time order in a late block, and a legacy RXM-RAW log: exit 2 as whole, the same message."""
     data = UBX_WALK.read_bytes()
@@ -364,7 +415,7 @@ def test_thin_ublox_tables_give_the_lock_counts(tmp_path, monkeypatch):
     r = rx.raw                         # in groups of satellites of 500 rows: the bits of all the rows at once
     want = gnss_ingest.ubx_loss_of_lock(r["time_gps_s"].to_numpy(), r["sat"].to_numpy(), r["phase_cycles"].to_numpy(),
                                         r["lock_time_ms"].to_numpy(dtype=float), r["half_cycle"].to_numpy() == 1)
-    monkeypatch.setattr(gnss_ingest, "_UBX_LLI_ROWS_PER_PASS", 500)
+    monkeypatch.setattr(gnss_ingest, "_LOCK_ROWS_PER_PASS", 500)
     assert len(gnss_ingest._channel_groups(np.bincount(pd.factorize(r["sat"])[0]), 500)) > 5
     for tab in (r, small.raw):
         assert np.array_equal(gnss_ingest._ubx_lli(tab, tab["time_gps_s"].to_numpy(), None), want)
