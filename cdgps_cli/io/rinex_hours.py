@@ -175,13 +175,27 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
     t1 = _epoch_time_s(_line(m, e1 + 1, end)) if e1 >= 0 else None
     if t0 is None or t1 is None or t1 < t0:
         raise NotCut("epochs")
-    k0, k1 = math.floor(t0 / block_s), math.floor(t1 / block_s)
-    starts = [e0] + [_first_epoch_from(m, k * block_s, lo, end) for k in range(k0 + 1, k1 + 1)] + [end]
-    blocks = [(k, a, b, _epoch_time_s(_line(m, a, end))) for k, a, b in zip(range(k0, k1 + 1), starts[:-1], starts[1:])
-              if b > a]
-    if e0 > lo or any(t is None for *_, t in blocks):
+    if e0 > lo:
         raise NotCut("the body does not begin with an epoch line")
-    return RinexHours(p, bytes(head), blocks, block_s, t0, t1)
+    return RinexHours(p, bytes(head), _blocks(m, lo, end, t0, t1, block_s), block_s, t0, t1)
+
+
+def _blocks(m: mmap.mmap, lo: int, end: int, t0: float, t1: float, block_s: float) -> list:
+    """The blocks of a body (bytes ``lo`` to ``end``) whose first and last epochs are at ``t0`` and ``t1`` (GPS s):
+    one bisection for each block that holds an epoch, from one block's first epoch straight to the next (a first
+    epoch a year early costs no bisection per hour between)."""
+    blocks, a, t, k1 = [], lo, t0, math.floor(t1 / block_s)
+    while True:
+        k = math.floor(t / block_s)
+        b = _first_epoch_from(m, (k + 1) * block_s, lo, end) if k < k1 else end
+        if b <= a:
+            raise NotCut("epochs out of time order")
+        blocks.append((k, a, b, t))
+        if b >= end:
+            return blocks
+        a, t = b, _epoch_time_s(_line(m, b, end))
+        if t is None or math.floor(t / block_s) <= k:
+            raise NotCut("epochs out of time order")
 
 
 def _epoch_time_system(p: Path, head: bytes) -> str:

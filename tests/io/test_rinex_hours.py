@@ -86,3 +86,21 @@ def test_a_file_of_one_epoch(tmp_path, rover):
     one = text[:at] + ">" + text[at:].split(">")[1]
     h = rinex_hours(_edited(tmp_path, rover, "one.rnx", lambda b: one.encode()), 3600.0)
     assert h is not None and len(h.blocks) == 1 and h.first_s == h.last_s
+
+
+def test_a_first_epoch_years_early_costs_one_bisection_per_block(tmp_path, rover, monkeypatch):
+    """A first epoch tagged years before the others (a receiver's wrong year): the blocks are the plain scan's, found
+    with one bisection per block that holds an epoch — not one per block of the years between (≈ 2.6 M of a
+    minute: minutes of bisection before)."""
+    from cdgps_cli.io import rinex_hours as rh  # noqa: PLC0415
+
+    text = rover.read_text()
+    at = text.index("\n", text.index("END OF HEADER")) + 1
+    line = text[at:text.index("\n", at)]
+    early = text[:at] + line.replace(line[2:6], str(int(line[2:6]) - 5), 1) + text[at + len(line):]
+    p = _edited(tmp_path, rover, "early.rnx", lambda b: early.encode())
+    calls = []
+    real = rh._first_epoch_from
+    monkeypatch.setattr(rh, "_first_epoch_from", lambda *a: calls.append(a[1]) or real(*a))
+    h = rinex_hours(p, 60.0)
+    assert h.blocks == _scan(p, 60.0) and len(calls) == len(h.blocks) - 1
