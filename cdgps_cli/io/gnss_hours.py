@@ -8,7 +8,7 @@ that do not overlap (a day as hourly files) — (:func:`cdgps_cli.io.rinex_hours
 returns the inputs and the generator of the blocks' tables that :func:`cdgps_cli.io.gnss_run.write_gnss_run_blocks`
 writes as they come.  What the checks and the summaries need of the whole record is kept in thin tables
 (:class:`ThinTables`: time, satellite, signal, whether a phase and a code are there, loss of lock — a UBX log's lock
-times and half-cycle status —; ≈ 18 bytes a row), which become the receivers' ``raw`` and ``signals`` once the last
+times and half-cycle status —; ≈ 15 bytes a row, 18 for a UBX log), which become the receivers' ``raw`` and ``signals`` once the last
 block is read, with the header the whole file's reading gives (:func:`~cdgps_cli.io.rinex_hours.join_obs_headers`,
 :func:`~cdgps_cli.io.ubx_hours.join_ubx_infos` and the log's RXM-SFRBX ephemerides; several files joined by
 :func:`~cdgps_cli.io.gnss_sequence.join_receivers`, as the whole reading joins them).
@@ -54,7 +54,7 @@ _THIN_UBX = {"lock_time_ms": np.uint16, "half_cycle": np.int8}
 
 class ThinTables:
     """The columns of a receiver's tables that the ingest's checks and summaries read of the whole record, kept
-    block by block in narrow types: ``raw`` (time, satellite, L1 phase and code — NaN where none — and LLI) and
+    block by block in narrow types: ``raw`` (time, satellite, whether an L1 phase and a code are there — 0, or NaN where none — and LLI) and
     ``signals`` (time, satellite, signal, phase, LLI); a UBX receiver's (``ubx``) also their lock times and
     half-cycle status.  The satellite and signal columns become categoricals (their categories sorted)."""
 
