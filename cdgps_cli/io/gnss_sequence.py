@@ -208,7 +208,7 @@ def ubx_sequence_ephemerides(paths, week_ref) -> tuple:
     frames = []
     for p in paths:
         frames.extend(split_stream(ubx_bytes(p))[0])
-    return sfrbx_ephemerides(frames, week_ref)
+    return sfrbx_ephemerides(frames, week_ref, glonass=True)
 
 
 def ubx_bytes(path) -> bytes:

@@ -443,7 +443,7 @@ def read_ubx_log(path: str | Path, *, strict: bool = False,
         sig = ", ".join(f"{k} ×{v}" for k, v in sorted(signals.items(), key=lambda kv: -kv[1]))
         raise CdgpsError(f"{p}: {n_epochs} RXM-RAWX epochs but no GPS L1 C/A measurements (signals found: {sig or 'none'})")
     info = _log_info(p, epochs, gps_sats, signals, counts, len(frames[1]), stats, undecodable_offsets)
-    nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, info["week"])
+    nav, info["sfrbx"] = sfrbx_ephemerides_at(*frames, info["week"], glonass=True)
     info["rtcm_base"] = rtcm_station_arp(rtcm)
     return info, obs, nav
 
@@ -726,4 +726,4 @@ def sfrbx_of_blocks(sfrbx: bytes, week_ref: int) -> tuple[pd.DataFrame, dict]:
     """(ephemerides, decoder counters) of the RXM-SFRBX frames of a log's blocks, joined in log order
     (:func:`read_ubx_block`'s ``sfrbx``): what :func:`read_ubx_log` decodes of the whole log."""
     off, end, _, _ = split_stream_spans(sfrbx) if sfrbx else (np.zeros(0, np.int64), np.zeros(0, np.int64), None, None)
-    return sfrbx_ephemerides_at(sfrbx, off, end, week_ref)
+    return sfrbx_ephemerides_at(sfrbx, off, end, week_ref, glonass=True)
