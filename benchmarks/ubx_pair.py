@@ -209,14 +209,35 @@ def check(d: Path) -> dict:
     return res
 
 
+def hourly_files(d: Path) -> str:
+    """The pair's UBX logs cut at each hour's first RXM-RAWX frame (:func:`cdgps_cli.io.ubx_hours.ubx_hours`) into
+    ``hours/<name>_<HH>.ubx``, as a logger rotating hourly writes them, with ``hours/ubx.toml`` naming them by a
+    glob; returns that config's path relative to ``d``."""
+    from cdgps_cli.io.ubx_hours import ubx_hours  # noqa: PLC0415
+
+    out = d / "hours"
+    out.mkdir(exist_ok=True)
+    for name in ("base", "rover"):
+        h = ubx_hours(d / f"{name}.ubx", 3600.0)
+        with open(d / f"{name}.ubx", "rb") as fh:
+            for j, (_, a, b, _) in enumerate(h.blocks):
+                fh.seek(a)
+                (out / f"{name}_{j:02d}.ubx").write_bytes(fh.read(b - a))
+    text = (d / "ubx.toml").read_text().replace('nav = ["nav.rnx"]', 'nav = ["../nav.rnx"]')
+    for name in ("base", "rover"):
+        text = text.replace(f'ubx = "{name}.ubx"', f'ubx = "{name}_*.ubx"')
+    (out / "ubx.toml").write_text(text)
+    return "hours/ubx.toml"
+
+
 def measure(d: Path, config: str, tree: Path = ROOT) -> dict:
     """``cdgps ingest --config d/config -o d/run-<config>.mcap`` (the package of source tree ``tree``) under
     /usr/bin/time -v, CDGPS_SERIAL=1."""
-    out = d / f"run-{Path(config).stem}.mcap"
+    out = d / f"run-{config.replace('/', '-').removesuffix('.toml')}.mcap"
     env = dict(os.environ, CDGPS_SERIAL="1", PYTHONPATH=str(tree))
     t0 = time.perf_counter()
     p = subprocess.run(["/usr/bin/time", "-v", *CDGPS, "-q", "ingest", "--config", str(d / config), "-o", str(out),
-                        "--json"], capture_output=True, text=True, env=env, cwd=d)
+                        "--json"], capture_output=True, text=True, env=env, cwd=(d / config).parent)
     wall = time.perf_counter() - t0
     rss = re.search(r"Maximum resident set size \(kbytes\): (\d+)", p.stderr)
     r = {"exit": p.returncode, "wall_s": round(wall, 1), "peak_rss_mib": round(int(rss[1]) / 1024, 1) if rss else None,
@@ -239,6 +260,8 @@ def main() -> None:
     ap.add_argument("--measure", action="store_true", help="time 'cdgps ingest' of the UBX and the RINEX configs")
     ap.add_argument("--tree", type=Path, default=ROOT, help="--measure the cdgps of this source tree [this one]")
     ap.add_argument("--json", type=Path, help="write the results here")
+    ap.add_argument("--hourly-files", action="store_true",
+                    help="with --measure, also the UBX logs cut into one file per hour (hours/ubx.toml)")
     a = ap.parse_args()
     results = []
     for hours in a.hours:
@@ -250,7 +273,8 @@ def main() -> None:
         if a.check:
             rec["check"] = check(d)
         if a.measure:
-            rec["ingest"] = {cfg: measure(d, cfg, a.tree.resolve()) for cfg in ("ubx.toml", "config.toml")}
+            configs = ["ubx.toml", "config.toml"] + ([hourly_files(d)] if a.hourly_files else [])
+            rec["ingest"] = {cfg: measure(d, cfg, a.tree.resolve()) for cfg in configs}
         print(json.dumps(rec), flush=True)
         results.append(rec)
     if a.json:
