@@ -25,7 +25,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, _ObsHeader, _parse_version_line, _split_lines, epoch_time_system
 from cdgps_cli.io.rinex_signals import _epoch_time
 
-__all__ = ["RinexHours", "rinex_hours", "join_obs_headers", "check_block", "NotCut"]
+__all__ = ["RinexHours", "rinex_hours", "join_obs_headers", "check_block", "NotCut", "cut_or_none", "jump_blocks"]
 
 class NotCut(Exception):
     """A file (or one of its blocks) that cannot be read block by block exactly as whole (the reason): it is read
@@ -55,16 +55,20 @@ class RinexHours:
     def block_bytes(self, j: int) -> tuple[bytes, bool]:
         """The ``read=`` argument of the readers for block ``j``: the header and that block's records (read from
         the file, not through a mapping: sequential reads, and no mapped pages left in the process)."""
-        _, a, b, _ = self.blocks[j]
-        with open(self.path, "rb") as fh:
-            fh.seek(a)
-            body = fh.read(b - a)
-        if len(body) != b - a:
-            raise NotCut("the file changed")
-        return self.head + body, False
+        return self.head + read_span(self.path, *self.blocks[j][1:3]), False
 
     def close(self) -> None:
         """(Nothing is held open between blocks: kept for the callers' symmetry.)"""
+
+
+def read_span(path: Path, a: int, b: int) -> bytes:
+    """Bytes ``a`` to ``b`` of a file; NotCut when it no longer holds them (it changed since it was cut)."""
+    with open(path, "rb") as fh:
+        fh.seek(a)
+        data = fh.read(b - a)
+    if len(data) != b - a:
+        raise NotCut("the file changed")
+    return data
 
 
 def _advise(m: mmap.mmap, what: str, *span) -> None:
@@ -131,9 +135,15 @@ def rinex_hours(path: str | Path, block_s: float, why: list | None = None) -> Ri
     """The file cut into blocks of ``block_s`` seconds of GPS time, or None when it is not a plain RINEX 3
     observation file with its epochs in GPS time (it is then read whole; ``why``, if given, gets the reason, e.g.
     "rover.obs.gz: compressed").  Opening errors are the readers' own (None: the whole reading names them)."""
+    return cut_or_none(_cut_file, path, block_s, why)
+
+
+def cut_or_none(cut, path, block_s: float, why: list | None):
+    """``cut(Path(path), block_s)``, or None when it raises NotCut (its reason appended to ``why`` as
+    ``"<file name>: <reason>"``)."""
     p = Path(path)
     try:
-        return _cut_file(p, block_s)
+        return cut(p, block_s)
     except NotCut as exc:
         if why is not None:
             why.append(f"{p.name}: {exc}")
@@ -181,20 +191,32 @@ def _cut(p: Path, m: mmap.mmap, block_s: float) -> RinexHours:
 
 
 def _blocks(m: mmap.mmap, lo: int, end: int, t0: float, t1: float, block_s: float) -> list:
-    """The blocks of a body (bytes ``lo`` to ``end``) whose first and last epochs are at ``t0`` and ``t1`` (GPS s):
-    one bisection for each block that holds an epoch, from one block's first epoch straight to the next (a first
-    epoch a year early costs no bisection per hour between)."""
+    """The blocks of a body (bytes ``lo`` to ``end``) whose first and last epochs are at ``t0`` and ``t1`` (GPS s)
+    (:func:`jump_blocks`)."""
+    def time_at(at: int) -> float:
+        t = _epoch_time_s(_line(m, at, end))
+        return math.nan if t is None else t
+
+    return jump_blocks(lambda t_s: _first_epoch_from(m, t_s, lo, end), time_at, lo, end, t0, t1, block_s)
+
+
+def jump_blocks(first_from, time_at, lo: int, end: int, t0: float, t1: float, block_s: float) -> list:
+    """[(block number, first byte, end byte, first epoch's GPS s)] of a file's records from byte ``lo`` to ``end``,
+    its first and last epochs at ``t0`` and ``t1``: one search for each block that holds an epoch
+    (``first_from(t_s)``: the offset of the first epoch at or after ``t_s``; ``time_at(offset)``: that epoch's
+    time), from one block's first epoch straight to the next — a first epoch a year early costs no search per hour
+    between.  NotCut when the epochs are not in time order."""
     blocks, a, t, k1 = [], lo, t0, math.floor(t1 / block_s)
     while True:
         k = math.floor(t / block_s)
-        b = _first_epoch_from(m, (k + 1) * block_s, lo, end) if k < k1 else end
+        b = first_from((k + 1) * block_s) if k < k1 else end
         if b <= a:
             raise NotCut("epochs out of time order")
         blocks.append((k, a, b, t))
         if b >= end:
             return blocks
-        a, t = b, _epoch_time_s(_line(m, b, end))
-        if t is None or math.floor(t / block_s) <= k:
+        a, t = b, time_at(b)
+        if not math.isfinite(t) or math.floor(t / block_s) <= k:
             raise NotCut("epochs out of time order")
 
 

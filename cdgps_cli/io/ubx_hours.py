@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import math
 import struct
-
-import numpy as np
 from dataclasses import dataclass
 from pathlib import Path
 
-from cdgps_cli.io.rinex_hours import NotCut
+import numpy as np
+
+from cdgps_cli.io.rinex_hours import NotCut, cut_or_none, jump_blocks, read_span
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, _Fletcher, _rtcm_at
 
 __all__ = ["UbxHours", "ubx_hours", "check_ubx_block", "join_ubx_infos", "LOSS_COUNTS"]
@@ -63,13 +63,7 @@ class UbxHours:
 
     def block_bytes(self, j: int) -> bytes:
         """The bytes of block ``j``, read from the log."""
-        _, a, b, _ = self.blocks[j]
-        with open(self.path, "rb") as fh:
-            fh.seek(a)
-            data = fh.read(b - a)
-        if len(data) != b - a:
-            raise NotCut("the file changed")
-        return data
+        return read_span(self.path, *self.blocks[j][1:3])
 
     def close(self) -> None:
         """(Nothing is held open between blocks: kept for the callers' symmetry.)"""
@@ -159,13 +153,7 @@ def ubx_hours(path: str | Path, block_s: float, why: list | None = None) -> UbxH
     """The log cut into blocks of ``block_s`` seconds of GPS time, or None when it cannot be (compressed, no
     RXM-RAWX frame, epochs out of order at the ends; ``why``, if given, gets the reason).  Opening errors are the
     reader's own (None: the whole reading names them)."""
-    p = Path(path)
-    try:
-        return _cut(p, block_s)
-    except NotCut as exc:
-        if why is not None:
-            why.append(f"{p.name}: {exc}")
-        return None
+    return cut_or_none(_cut, path, block_s, why)
 
 
 def _cut(p: Path, block_s: float) -> UbxHours:
@@ -189,21 +177,10 @@ def _cut(p: Path, block_s: float) -> UbxHours:
 
 
 def _blocks(probe: _Probe, t0: float, t1: float, block_s: float) -> list:
-    """The blocks of a log whose first and last RXM-RAWX epochs are at ``t0`` and ``t1`` (GPS s): one bisection for
-    each block that holds an epoch, from one block's first epoch straight to the next (a record with days between
-    two epochs, or a first epoch with a wrong week, costs no bisection per empty hour)."""
-    blocks, a, t, k1 = [], 0, t0, math.floor(t1 / block_s)
-    while True:
-        k = math.floor(t / block_s)
-        b = probe.first_from((k + 1) * block_s, probe.size) if k < k1 else probe.size
-        if b <= a:
-            raise NotCut("RXM-RAWX epochs out of time order")
-        blocks.append((k, a, b, t))
-        if b >= probe.size:
-            return blocks
-        a, t = b, probe.at_or_after(b)[1]
-        if not math.isfinite(t) or math.floor(t / block_s) <= k:
-            raise NotCut("RXM-RAWX epochs out of time order")
+    """The blocks of a log whose first and last RXM-RAWX epochs are at ``t0`` and ``t1`` (GPS s), the first from the
+    log's first byte (:func:`~cdgps_cli.io.rinex_hours.jump_blocks`)."""
+    return jump_blocks(lambda t_s: probe.first_from(t_s, probe.size), lambda at: probe.at_or_after(at)[1], 0,
+                       probe.size, t0, t1, block_s)
 
 
 def check_ubx_block(hours: UbxHours, j: int, block: dict, previous_last_s: float | None, strict: bool = False) -> None:
