@@ -351,7 +351,8 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
         problems = integrity_problems(dict(stats, undecodable_frames=undecodable,
                                            undecodable_frame_offsets=undecodable_offsets[:_MAX_SHOWN]))
         if problems:
-            raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)} (refused by --strict)")
+            raise CdgpsError(f"{p}: corrupt UBX data: {', '.join(problems)} (refused by --strict)"
+                             f"{_first_loss_text(stats, undecodable_offsets, epochs, len(data))}")
     n_epochs = len(epochs)
     if n_epochs == 0:
         raise CdgpsError(f"{p}: none of the {n_rawx} RXM-RAWX messages could be decoded (each payload must "
@@ -364,6 +365,24 @@ def _decode_rawx_log(p: Path, strict: bool, data: bytes | None):
                          f"{epochs['rcvTow'][i]} s) is earlier than the previous one (byte {epochs['offset'][i - 1]}); "
                          "epochs must be in time order")
     return (data, off, end), rtcm, stats, counts, epochs, meas, undecodable_offsets, t
+
+
+def _first_loss_text(stats: dict, undecodable: list, epochs: np.ndarray, size: int) -> str:
+    """``"; the first loss is at byte N, after the epoch of <GPS time>"``: where in the record the first loss of a log is (the
+    last decodable RXM-RAWX epoch before it), for ``--strict``'s refusal; empty when it has no byte offset."""
+    from cdgps_cli.core.gps_time import gps_time_str  # noqa: PLC0415
+
+    offs = [*stats["bad_frame_offsets"], *undecodable, *stats["bad_rtcm_offsets"]]
+    if stats["truncated_tail_bytes"]:
+        offs.append(size - int(stats["truncated_tail_bytes"]))
+    if not offs:
+        return ""
+    first = min(offs)
+    before = np.flatnonzero(epochs["offset"] < first)
+    if not before.size:
+        return f"; the first loss is at byte {first}, before the first epoch"
+    e = epochs[before[-1]]
+    return f"; the first loss is at byte {first}, after the epoch of {gps_time_str(float(e['week']) * 604800.0 + float(e['rcvTow']))}"
 
 
 def read_ubx_rawx(path: str | Path, *, strict: bool = False) -> tuple[dict, pd.DataFrame]:
