@@ -79,6 +79,25 @@ def gps_time_str(t_gps_s: float) -> str:
     return f"{s}.{ms:03d} GPST" if ms else f"{s} GPST"
 
 
+def distinct_times(t_s) -> np.ndarray:
+    """``np.unique`` of time tags (float64), in O(n) without a sort when they do not decrease (a record's rows:
+    a day at 10 Hz is ≈ 9 M of them, whose sort took ≈ 0.4 s each time); any other input (out of order, NaN) by
+    ``np.unique`` itself.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Time tags, s (any order, repeats allowed).
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    if t.ndim != 1 or t.size < 2 or not bool(np.all(t[1:] >= t[:-1])):
+        return np.unique(t)
+    keep = np.empty(t.size, dtype=bool)
+    keep[0] = True
+    np.not_equal(t[1:], t[:-1], out=keep[1:])
+    return t[keep]
+
+
 def nominal_interval_s(t_s) -> float:
     """Median spacing of distinct epoch times (rounded to 1 ms), s; NaN for fewer than 2 epochs.
 
@@ -87,7 +106,7 @@ def nominal_interval_s(t_s) -> float:
     t_s : array_like, shape (N,)
         Epoch times, s (any order, repeats allowed).
     """
-    u = np.unique(np.asarray(t_s, dtype=np.float64))
+    u = distinct_times(t_s)
     if u.size < 2:
         return math.nan
     return float(np.round(np.median(np.diff(u)), 3))

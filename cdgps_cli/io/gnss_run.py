@@ -59,7 +59,7 @@ from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
-from cdgps_cli.core.gps_time import nominal_interval_s
+from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
@@ -956,7 +956,7 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
     tab = rx.raw if len(rx.raw) or rx.signals is None else rx.signals     # a file without GPS: its signal rows
     t = tab["time_gps_s"].to_numpy()
     ph = np.isfinite(tab["phase_cycles"].to_numpy(dtype=float))
-    tu = np.unique(t)
+    tu = distinct_times(t)
     return {"name": n, "format": rx.format, "file": rx.file, "epochs": int(tu.size),
             "first": gps_time_str(float(tu[0])), "last": gps_time_str(float(tu[-1])),
             "first_gps_s": float(tu[0]), "last_gps_s": float(tu[-1]),

@@ -23,7 +23,7 @@ from cdgps_cli.config.structure import GnssConfig
 from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import gnss_hours, gnss_run
-from cdgps_cli.core.gps_time import nominal_interval_s
+from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.io.gnss_run import GnssReceiver, IngestInputs, span_text
 from cdgps_cli.io.sensor_logs import sensor_attachments, sensor_log_file
@@ -405,10 +405,10 @@ def _common_epochs(cfg: GnssConfig, inp: IngestInputs) -> dict:
     rover epoch that will not be used (with the reason)."""
     receivers, master, files, warnings = inp.receivers, inp.master, inp.files, inp.warnings
     rovers = [n for n in receivers if n != master]
-    tm = np.unique(_anchor_rows(receivers[master], cfg.signals)["time_gps_s"].to_numpy())
+    tm = distinct_times(_anchor_rows(receivers[master], cfg.signals)["time_gps_s"].to_numpy())
     common = {}
     for n in rovers:
-        tr = np.unique(_anchor_rows(receivers[n], cfg.signals)["time_gps_s"].to_numpy())
+        tr = distinct_times(_anchor_rows(receivers[n], cfg.signals)["time_gps_s"].to_numpy())
         ps = _pairing(tm, tr, cfg)
         if ps["used"] == 0:
             raise CdgpsError(
