@@ -796,14 +796,20 @@ class _RtkDynamics:
         self.motion = _motion_model(opt)
         self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
-        self._last = None
+        self._by_dt = {}
+
+    #: step lengths whose transition :meth:`_transition` keeps (a record's few distinct spacings: a 10 Hz
+    #: record's time tags differ by 4 values around 0.1 s, one after the other)
+    MAX_KEPT_STEPS = 64
 
     def _transition(self, dt):
-        """The motion model's (A, B, Q) over ``dt`` s, kept for the last step length (the epochs are
-        mostly evenly spaced; the arrays are only read)."""
-        if self._last is None or self._last[0] != dt:
-            self._last = (dt, self.motion.transition(dt))
-        return self._last[1]
+        """The motion model's (A, B, Q) over ``dt`` s, kept per step length (the arrays are only read)."""
+        got = self._by_dt.get(dt)
+        if got is None:
+            if len(self._by_dt) >= self.MAX_KEPT_STEPS:
+                self._by_dt.clear()
+            got = self._by_dt[dt] = self.motion.transition(dt)
+        return got
 
     def step_into(self, k):
         dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
