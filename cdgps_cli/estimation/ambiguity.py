@@ -586,6 +586,8 @@ def search_reduced(L, d, zs):
                                         np.ascontiguousarray(zs, dtype=float), 2, SEARCH_MAX_NODES, out_z, out_s)
     if over:
         raise _limit_error(SEARCH_MAX_NODES, n, found, 2)
+    if found == 2 and out_s[0] <= out_s[1]:                   # already in order (no NaN): what the sort gives
+        return out_z, out_s
     order = np.argsort(out_s[:found], kind="stable")          # as search's sort of the norms (stable)
     return out_z[order], out_s[order]
 

@@ -297,7 +297,8 @@ class DDGroupModel:
         groups = self.groups
         if not groups:
             return None
-        sizes = np.array([len(g["sats"]) for g in groups])
+        n_sats = [len(g["sats"]) for g in groups]
+        sizes = np.array(n_sats)
         whole = groups[0].get("epoch_rows") if len(groups) > 1 else groups[0]
 
         def cat(key):
@@ -305,14 +306,15 @@ class DDGroupModel:
                 return whole[key]
             return np.concatenate([g[key] for g in groups])
 
-        M, n = int(sizes.sum()), len(self._ctx.x)
+        M, n = sum(n_sats), len(self._ctx.x)
         amb, ion, lam, mu = cat("amb_col"), cat("iono_col"), cat("lam_m"), cat("mu")
         H = np.zeros((2 * M, n))
-        H[np.arange(M), amb] = lam
+        r = np.arange(M)
+        H[r, amb] = lam
         has_iono = bool((ion >= 0).all())
         if has_iono:
-            H[np.arange(M), ion] = -mu
-            H[M + np.arange(M), ion] = mu
+            H[r, ion] = -mu
+            H[M + r, ion] = mu
         sx = cat("sat_xyz")
         los_b = cat("sat_base_xyz") - self.base_xyz
         ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)),
