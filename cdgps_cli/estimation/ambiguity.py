@@ -226,12 +226,12 @@ def ld_factorize_symmetric(A):
             "Q is not symmetric positive definite (Cholesky factorisation failed)"
         ) from exc
     U = C[::-1, ::-1]
-    sq = np.diag(U).copy()
+    sq = U.diagonal().copy()
     d = sq * sq
-    pivot_floor = PIVOT_RTOL * n * max(float(np.max(np.diag(A))), 0.0)
-    bad = np.flatnonzero(~(d > pivot_floor))
-    if bad.size:
-        i = int(bad[-1])
+    pivot_floor = PIVOT_RTOL * n * max(float(A.diagonal().max()), 0.0)
+    low = ~(d > pivot_floor)
+    if low.any():
+        i = int(np.flatnonzero(low)[-1])
         raise AmbiguityError(
             f"Q is not symmetric positive definite: pivot d[{i}] = {d[i]:.6g} "
             f"is not significantly positive in the L^T D L factorisation"
@@ -586,6 +586,8 @@ def search_reduced(L, d, zs):
                                         np.ascontiguousarray(zs, dtype=float), 2, SEARCH_MAX_NODES, out_z, out_s)
     if over:
         raise _limit_error(SEARCH_MAX_NODES, n, found, 2)
+    if found == 2 and out_s[0] <= out_s[1]:                   # already in order (no NaN): what the sort gives
+        return out_z, out_s
     order = np.argsort(out_s[:found], kind="stable")          # as search's sort of the norms (stable)
     return out_z[order], out_s[order]
 
@@ -857,14 +859,14 @@ def ratio_test(squared_norms, threshold=RATIO_THRESHOLD):
     s = np.asarray(squared_norms, dtype=float).ravel()
     if s.shape[0] < 2:
         raise AmbiguityError("ratio_test needs at least two squared norms")
-    if not np.all(np.isfinite(s[:2])) or np.any(s[:2] < 0):
+    s0, s1 = float(s[0]), float(s[1])          # (the checks on Python floats: a per-epoch call)
+    if not (math.isfinite(s0) and math.isfinite(s1)) or s0 < 0 or s1 < 0:
         raise AmbiguityError(f"squared norms must be finite and >= 0, got {s[:2]}")
-    if s[1] < s[0]:
+    if s1 < s0:
         raise AmbiguityError(f"squared norms must be ascending, got {s[:2]}")
     thr = float(threshold)
     if not math.isfinite(thr):
         raise AmbiguityError(f"threshold must be finite, got {threshold!r}")
-    s0, s1 = float(s[0]), float(s[1])
     if s0 > 0:
         ratio = s1 / s0
     else:

@@ -517,6 +517,27 @@ RELEASE_RECOVERY_EPOCHS = 20
 HOLD_VARIANCE_CYCLES2 = 0.001
 
 
+_EYES: dict = {}
+
+
+def _eye(n: int) -> np.ndarray:
+    """``np.eye(n)``, kept per size (read only)."""
+    e = _EYES.get(("eye", n))
+    if e is None:
+        e = _EYES[("eye", n)] = np.eye(n)
+        e.flags.writeable = False
+    return e
+
+
+def _hold_variance(n: int) -> np.ndarray:
+    """``HOLD_VARIANCE_CYCLES2 * np.eye(n)``, kept per size (read only)."""
+    e = _EYES.get(("hold", n))
+    if e is None:
+        e = _EYES[("hold", n)] = HOLD_VARIANCE_CYCLES2 * np.eye(n)
+        e.flags.writeable = False
+    return e
+
+
 def _hold(st, fix) -> None:
     """Fix-and-hold: the fixed integer combinations ``Ts x = integers`` as measurements of variance
     :data:`HOLD_VARIANCE_CYCLES2` (RTKLIB ``holdamb``), so the float ambiguities keep the integers.
@@ -528,7 +549,7 @@ def _hold(st, fix) -> None:
     if Ts is not Ts_fix or st.P is not P_fix:     # the state changed since the fix: form them
         TsP = Ts @ st.P
         Qs = TsP @ Ts.T
-    S = Qs + HOLD_VARIANCE_CYCLES2 * np.eye(len(ints))
+    S = Qs + _hold_variance(len(ints))
     K = np.linalg.solve(S, TsP).T
     st.x = st.x + K @ (ints - Ts @ st.x)
     P = st.P - K @ Ts @ st.P
@@ -751,8 +772,9 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
         out.update({key: np.full(out[like].shape, np.nan) for key, like in _VELOCITY_KEYS.items()})
     st = _State(_n_motion(opt))
     amb_keys, slip_rows = _amb_keys(rows), np.flatnonzero(rows["slip"]).tolist()
+    # (the wrong-fix test, epoch_nis, predicts at the state before the update, as the update's first iteration)
     model = DDGroupModel(lambda i: _groups_with_keys(rows, order[i], amb_keys, slip_rows), base_xyz, origin,
-                         linearization_tol_m=RTK_LINEARIZATION_TOL_M)
+                         linearization_tol_m=RTK_LINEARIZATION_TOL_M, remember_last=True)
     source = EpochGrid(times[order])
     # the passes step |Δt| (:class:`_RtkDynamics`): a backward pass's velocity state is minus the rover's
     v_sign = -1.0 if n_ep > 1 and order[1] < order[0] else 1.0
@@ -796,14 +818,20 @@ class _RtkDynamics:
         self.motion = _motion_model(opt)
         self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
-        self._last = None
+        self._by_dt = {}
+
+    #: step lengths whose transition :meth:`_transition` keeps (a record's few distinct spacings: a 10 Hz
+    #: record's time tags differ by 4 values around 0.1 s, one after the other)
+    MAX_KEPT_STEPS = 64
 
     def _transition(self, dt):
-        """The motion model's (A, B, Q) over ``dt`` s, kept for the last step length (the epochs are
-        mostly evenly spaced; the arrays are only read)."""
-        if self._last is None or self._last[0] != dt:
-            self._last = (dt, self.motion.transition(dt))
-        return self._last[1]
+        """The motion model's (A, B, Q) over ``dt`` s, kept per step length (the arrays are only read)."""
+        got = self._by_dt.get(dt)
+        if got is None:
+            if len(self._by_dt) >= self.MAX_KEPT_STEPS:
+                self._by_dt.clear()
+            got = self._by_dt[dt] = self.motion.transition(dt)
+        return got
 
     def step_into(self, k):
         dt = abs(float(self.time_s[k] - self.time_s[k - 1]))
@@ -860,8 +888,23 @@ def epoch_nis(model, rows, x, P, phase_only: bool = False) -> tuple[float, int]:
     B = rows.B[:k, :k]                         # block-diagonal: the phase blocks, then the code blocks
     nu = B @ (rows.z_m[:k] - h[:k])
     Hw = B @ H[:k]
-    S = Hw @ P @ Hw.T + np.eye(k)
+    S = Hw @ P @ Hw.T + _eye(k)
     return float(nu @ np.linalg.solve(S, nu)), k - len(model.groups) * (1 if phase_only else 2)
+
+
+_CHI2_KEPT: dict = {}
+
+
+def _chi2_quantile(probability, dof):
+    """:func:`~cdgps_cli.estimation.chi2.chi2_quantile` of a scalar ``probability`` and ``dof``, kept per pair (the
+    wrong-fix test asks the same few at every held epoch)."""
+    key = (probability, dof)
+    q = _CHI2_KEPT.get(key)
+    if q is None:
+        if len(_CHI2_KEPT) >= 4096:
+            _CHI2_KEPT.clear()
+        q = _CHI2_KEPT[key] = chi2_quantile(probability, dof)
+    return q
 
 
 def _released(P, cols, var_cycles2) -> np.ndarray:
@@ -932,7 +975,7 @@ class _AmbiguityHook(Hook):
         prior, self.prior = self.prior, None
         p = self.opt["wrong_fix_probability"]
         nis, dof = epoch_nis(model, rows, *prior, phase_only=True)
-        if dof < 1 or nis <= chi2_quantile(p, dof):
+        if dof < 1 or nis <= _chi2_quantile(p, dof):
             return
         self.st.x, self.st.P = prior                  # the held integers contradict this epoch: undo, float, again
         var = self.opt["amb_sigma_cycles"] ** 2
@@ -971,7 +1014,7 @@ class _AmbiguityHook(Hook):
         fx, n, ratio, fx_cov, partial = (_fix(st, groups, opt, self.carried) if (groups and opt["fix"])
                                          else (None, 0, np.nan, None, False))
         origin = self.model.origin
-        if fx is not None and not partial and np.trace(fx_cov[:3, :3]) > MAX_FIXED_SIGMA_M ** 2:
+        if fx is not None and not partial and fx_cov[:3, :3].trace() > MAX_FIXED_SIGMA_M ** 2:
             partial = True                         # integers fixed, but too few or too weak to set the position
         if fx is not None:                         # part of the set: a better float, not a fixed position
             kind = "float" if partial else "fixed"

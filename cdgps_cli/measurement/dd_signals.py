@@ -264,15 +264,18 @@ class DDGroupModel:
     ambiguities (cycles), SD slant ionosphere at L1 (m)…]; its size is read from the drive's
     context at :meth:`prepare`.  Groups that carry ``epoch_rows`` (:func:`epoch_groups`, when an
     epoch's groups are adjacent rows of the run) give their row columns as that one view instead of
-    being concatenated (the same values).
+    being concatenated (the same values).  ``remember_last``: :meth:`predict` gives its last result of the same
+    rows again for the same state (bit for bit) instead of forming it (a caller that predicts twice at one state).
     """
 
-    def __init__(self, groups_of, base_xyz_m, origin_xyz_m, linearization_tol_m: float | None = None):
+    def __init__(self, groups_of, base_xyz_m, origin_xyz_m, linearization_tol_m: float | None = None,
+                 remember_last: bool = False):
         self.groups_of = groups_of
         self.base_xyz = np.asarray(base_xyz_m, dtype=float)
         self.origin = np.asarray(origin_xyz_m, dtype=float)
         self.groups, self._ctx = [], None
         self.linearization_tol_m = linearization_tol_m
+        self.remember_last = remember_last
 
     def linear_within(self, dx) -> bool:
         """Whether a Gauss–Newton step ``dx`` (state, the rover offset first) leaves every DD's linearization good
@@ -294,7 +297,8 @@ class DDGroupModel:
         groups = self.groups
         if not groups:
             return None
-        sizes = np.array([len(g["sats"]) for g in groups])
+        n_sats = [len(g["sats"]) for g in groups]
+        sizes = np.array(n_sats)
         whole = groups[0].get("epoch_rows") if len(groups) > 1 else groups[0]
 
         def cat(key):
@@ -302,14 +306,15 @@ class DDGroupModel:
                 return whole[key]
             return np.concatenate([g[key] for g in groups])
 
-        M, n = int(sizes.sum()), len(self._ctx.x)
+        M, n = sum(n_sats), len(self._ctx.x)
         amb, ion, lam, mu = cat("amb_col"), cat("iono_col"), cat("lam_m"), cat("mu")
         H = np.zeros((2 * M, n))
-        H[np.arange(M), amb] = lam
-        has_iono = bool(np.all(ion >= 0))
+        r = np.arange(M)
+        H[r, amb] = lam
+        has_iono = bool((ion >= 0).all())
         if has_iono:
-            H[np.arange(M), ion] = -mu
-            H[M + np.arange(M), ion] = mu
+            H[r, ion] = -mu
+            H[M + r, ion] = mu
         sx = cat("sat_xyz")
         los_b = cat("sat_base_xyz") - self.base_xyz
         ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)),
@@ -318,8 +323,23 @@ class DDGroupModel:
                          np.concatenate([cat("var_phase"), cat("var_code")]), np.concatenate([sizes, sizes]), ctx)
 
     def predict(self, x, rows):
-        """h(x) (2M,) m and H (2M, n) of :meth:`rows`' SDs (the rows' H template, position columns set)."""
+        """h(x) (2M,) m and H (2M, n) of :meth:`rows`' SDs (the rows' H template, position columns set).
+
+        With ``remember_last``, the last ``h`` of these rows is kept with the state's bytes and given again for the
+        same state: the H template still holds that state's position columns (only this method writes them, its
+        callers read H)."""
         c = rows.context
+        if self.remember_last:
+            key = x.tobytes()
+            last = c.get("last_predict")
+            if last is not None and last[0] == key:
+                return last[1], c["H"]
+            h, H = self._predict(x, c)
+            c["last_predict"] = (key, h)
+            return h, H
+        return self._predict(x, c)
+
+    def _predict(self, x, c):
         los = c["sat_xyz"] - (self.origin + x[:3])
         rng = np.sqrt(np.einsum("ij,ij->i", los, los))
         H, M = c["H"], c["M"]
