@@ -1001,9 +1001,10 @@ def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar=None) -> int:
     across receivers; ``bar``, if given, counts them.
 
     The bytes of :meth:`McapOut.write` of each epoch's payload (:func:`_obs_payload`), made from the
-    texts of a block of rows' values (one orjson call per column and block, no dict per message;
-    issue 29: 10 s of a day's ingest went to the dicts); a message whose text would hold ``null``
-    (a value the schema has no place for, e.g. an infinity) goes through :meth:`McapOut.write`."""
+    texts of a block of messages' values (one orjson call per column and block, no dict per message;
+    issue 29: 10 s of a day's ingest went to the dicts) and put together for the whole block at once
+    (:func:`_obs_texts`); a message whose text would hold ``null`` (a value the schema has no place for,
+    e.g. an infinity) goes through :meth:`McapOut.write`."""
     per = []
     for n, r in raws.items():
         t = r["time_gps_s"].to_numpy()
@@ -1014,73 +1015,122 @@ def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar=None) -> int:
         clk = r["clock_offset_s"].to_numpy()
         per.append((n, t, cuts, cols, flag, clk))
     order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
-    heads = [b'{"timestamp":{"sec":%d,"nsec":%d},"time_s":%s,"receiver":' + orjson.dumps(p[0]).replace(b"%", b"%%")
-             + b',"epoch_flag":%d' for p in per]
     for start in range(0, len(order), _OBS_MESSAGES_PER_BLOCK):
         part = order[start:start + _OBS_MESSAGES_PER_BLOCK]
-        bodies = {}
-        for i in {i for _, i, _ in part}:
-            ks = [k for _, j, k in part if j == i]
-            k0 = min(ks)
-            bodies[i] = (k0, _obs_bodies(per[i][3], per[i][2][k0:max(ks) + 2]))
-        times, stamps, datas, names = [], [], [], []
         part_times = [t for t, _, _ in part]
-        time_texts = orjson.dumps(part_times)[1:-1].split(b",")
-        for (t_s, i, k), t_text, ns in zip(part, time_texts, unix_ns_list(part_times, out.time_scale)):
-            n, t, cuts, _, flag, clk = per[i]
-            k0, body = bodies[i]
-            a = int(cuts[k])
-            c = clk[a]
-            data = b"".join([heads[i] % (ns // 1_000_000_000, ns % 1_000_000_000, t_text, int(flag[a])),
-                             b',"clock_offset_s":' + orjson.dumps(float(c)) if math.isfinite(c) else b"", body[k - k0]])
-            if b"null" in data:               # write()'s own rules for what the schema cannot hold
-                out.write_encoded(ch, times, stamps, datas, names)
-                times, stamps, datas, names = [], [], [], []
-                out.write(ch, t_s, _obs_payload(per[i], a, int(cuts[k + 1])))
-                continue
-            times.append(t_s)
-            stamps.append(ns)
-            datas.append(data)
-            names.append(n)
-        out.write_encoded(ch, times, stamps, datas, names)
+        stamps = unix_ns_list(part_times, out.time_scale)
+        ii = np.array([i for _, i, _ in part], dtype=np.int64)
+        kk = np.array([k for _, _, k in part], dtype=np.int64)
+        blob = _obs_texts(per, part_times, stamps, ii, kk)
+        datas = blob.split(b"\r")
+        if len(datas) != len(part) + 1:
+            raise AssertionError("observation messages: a carriage return in a message's text")
+        datas.pop()
+        names = [per[i][0] for i in ii.tolist()]
+        nulls = [m for m, d in enumerate(datas) if b"null" in d] if b"null" in blob else []
+        at = 0
+        for m in nulls:                    # write()'s own rules for what the schema cannot hold
+            out.write_encoded(ch, part_times[at:m], stamps[at:m], datas[at:m], names[at:m])
+            t_s, i, k = part[m]
+            cuts = per[i][2]
+            out.write(ch, t_s, _obs_payload(per[i], int(cuts[k]), int(cuts[k + 1])))
+            at = m + 1
+        out.write_encoded(ch, part_times[at:], stamps[at:], datas[at:], names[at:])
         if bar is not None:
             bar.update(len(part))
     return len(order)
 
 
-def _obs_bodies(cols: dict, cuts: np.ndarray) -> list:
-    """The JSON text of the array fields of :func:`_obs_payload` (``_valid`` companions after their
-    field; a missing value as 0 and ``false`` in its companion, as :meth:`McapOut.write` writes it),
-    from the comma before the first to the closing brace, of each message of rows cuts[m] … cuts[m+1]−1."""
-    lo, hi = int(cuts[0]), int(cuts[-1])
-    bounds = (cuts[:-1] - lo, cuts[1:] - lo)
-    parts = []
-    for c, v in cols.items():
-        v = v[lo:hi]
-        missing = np.isnan(v) if (c in _NULLABLE_OBS and v.dtype.kind == "f") else None
-        vals = v if missing is None or not missing.any() else np.where(missing, 0.0, v)
-        parts += _field_texts(c, vals.tolist(), bounds, not parts)
-        if c in _NULLABLE_OBS:
-            ok = np.ones(v.size, dtype=bool) if missing is None else ~missing
-            parts += _field_texts(c + VALID_SUFFIX, ok.tolist(), bounds, False)
-    parts.append(itertools.repeat(b"]}"))
-    return [b"".join(p) for p in zip(*parts)]
+def _obs_texts(per: list, part_times: list, stamps: list, ii: np.ndarray, kk: np.ndarray) -> bytes:
+    """The JSON texts of the messages of a block, each followed by a carriage return (which no orjson text
+    holds), in one bytes (message m: receiver ``per[ii[m]]``, its epoch ``kk[m]``, at ``part_times[m]``, log time
+    ``stamps[m]`` ns).  Each field's texts of a receiver's messages, its key's words in front, come from one
+    orjson text of its values split at the commas between messages (:func:`_message_texts`); the ``_valid``
+    companion of a field with no missing value is a text per row count.  The pieces of all messages are laid
+    out in one object array (a row per message) and joined at once: no Python work per message and field
+    (issue 29)."""
+    ncol = 5 + 2 * len(_NULLABLE_OBS) + len(_INT_OBS) + 1
+    tabs, row0, n_rows = [], {}, 0
+    for i in np.unique(ii).tolist():
+        n, _, cuts, cols, flag, clk = per[i]
+        ks = kk[ii == i]
+        k0, k1 = int(ks.min()), int(ks.max()) + 1
+        c = cuts[k0:k1 + 1]
+        a = c[:-1]
+        lo, hi = int(c[0]), int(c[-1])
+        rel = c - lo
+        m = k1 - k0
+        every = np.arange(m + 1)
+        A = np.empty((m, ncol), dtype=object)
+        A[:, 3] = _message_texts(flag[a].astype(np.int64), every, b',"receiver":' + orjson.dumps(n) + b',"epoch_flag":')
+        cv = clk[a].astype(float)
+        fin = np.isfinite(cv)
+        if fin.all():
+            A[:, 4] = _message_texts(cv, every, b',"clock_offset_s":')
+        else:
+            A[:, 4] = b""
+            if fin.any():
+                A[fin, 4] = _message_texts(cv[fin], np.arange(int(fin.sum()) + 1), b',"clock_offset_s":')
+        col, last = 5, len(cols) - 1
+        for f, (name, v) in enumerate(cols.items()):
+            v = v[lo:hi]
+            missing = np.isnan(v) if (name in _NULLABLE_OBS and v.dtype.kind == "f") else None
+            vals = v if missing is None or not missing.any() else np.where(missing, 0.0, v)
+            A[:, col] = _message_texts(vals, rel, (b',"' if col == 5 else b'],"') + orjson.dumps(name)[1:-1] + b'":[',
+                                       b"]}\r" if f == last else b"")
+            col += 1
+            if name in _NULLABLE_OBS:
+                pre = b'],"' + orjson.dumps(name + VALID_SUFFIX)[1:-1] + b'":['
+                if missing is None or not missing.any():        # all true: the text of the row count
+                    counts = np.diff(rel)
+                    lut = np.empty(int(counts.max()) + 1, dtype=object)
+                    for k in np.unique(counts).tolist():
+                        lut[k] = pre + b",".join([b"true"] * k)
+                    A[:, col] = lut[counts]
+                else:
+                    A[:, col] = _message_texts(~missing, rel, pre)
+                col += 1
+        row0[i] = n_rows - k0
+        n_rows += m
+        tabs.append(A)
+    rows = np.array([row0[i] for i in ii.tolist()], dtype=np.int64) + kk
+    A = np.concatenate(tabs)[rows] if len(tabs) > 1 else tabs[0][rows]
+    every = np.arange(len(stamps) + 1)
+    ns = np.array(stamps, dtype=object)
+    A[:, 0] = _message_texts((ns // 1_000_000_000).tolist(), every, b'{"timestamp":{"sec":')
+    A[:, 1] = _message_texts((ns % 1_000_000_000).tolist(), every, b',"nsec":')
+    A[:, 2] = _message_texts(part_times, every, b'},"time_s":')
+    return b"".join(A.ravel().tolist())
 
 
-def _field_texts(key: str, values: list, bounds: tuple, first: bool) -> list:
-    """(the key's text, repeated; the array's text per message) of one field: message m holds
-    ``values[a[m]:b[m]]``, (a, b) = ``bounds`` (int arrays; no message empty).  One orjson text of all the
-    values, cut at the commas between them (each value's text is the same alone or in a list): no list per
-    message (a day's pair: 0.7 s of ingest)."""
-    a, b = bounds
-    text = orjson.dumps(values)
-    commas = np.flatnonzero(np.frombuffer(text, dtype=np.uint8) == ord(","))
-    if commas.size == len(values) - 1:
-        starts, ends = np.r_[1, commas + 1], np.r_[commas, len(text) - 1]      # value i: text[starts[i]:ends[i]]
-        per_message = [text[i:j] for i, j in zip(starts[a].tolist(), ends[b - 1].tolist())]
-    else:                                             # (a value holding a comma: each message on its own)
-        per_message = [orjson.dumps(values[i:j])[1:-1] for i, j in zip(a.tolist(), b.tolist())]
-    return [itertools.repeat((b',"' if first else b'],"') + orjson.dumps(key)[1:-1] + b'":['), per_message]
+_ORJSON_NUMPY = frozenset("<f8 <i8 <i4 |b1 =f8 =i8 =i4".split())
+
+
+def _message_texts(values, cuts: np.ndarray, prefix: bytes = b"", suffix: bytes = b"") -> list:
+    """``prefix`` + the JSON text of each message's values without the brackets + ``suffix`` (message m:
+    ``values[cuts[m]:cuts[m+1]]``, none empty; ``values`` a list or 1-D array): one orjson text of all the
+    values (each value's text is the same alone or in a list, and a float64, int or bool array's the same as
+    its list's), split at the commas between messages; a value holding a comma: each message on its own."""
+    if isinstance(values, np.ndarray):
+        values = values if values.dtype.str in _ORJSON_NUMPY and values.flags.c_contiguous else values.tolist()
+    text = orjson.dumps(values, option=orjson.OPT_SERIALIZE_NUMPY)
+    n = len(values)
+    if b"\n" not in text and b"\n" not in prefix + suffix:
+        if len(cuts) == n + 1:                                # a message per value: split at every comma
+            if text.count(b",") == n - 1:
+                return (prefix + text[1:-1].replace(b",", suffix + b"\n" + prefix) + suffix).split(b"\n")
+        else:
+            commas = np.flatnonzero(np.frombuffer(text, dtype=np.uint8) == ord(","))
+            if commas.size == n - 1:
+                b = bytearray(text)
+                np.frombuffer(b, dtype=np.uint8)[commas[cuts[1:-1] - 1]] = ord("\n")
+                body = bytes(b[1:-1])
+                if prefix or suffix:
+                    body = prefix + body.replace(b"\n", suffix + b"\n" + prefix) + suffix
+                return body.split(b"\n")
+    if isinstance(values, np.ndarray):
+        values = values.tolist()
+    return [prefix + orjson.dumps(values[i:j])[1:-1] + suffix for i, j in zip(cuts[:-1].tolist(), cuts[1:].tolist())]
 
 
 def _obs_payload(p: tuple, a: int, b: int) -> dict:
