@@ -1014,16 +1014,14 @@ def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar=None) -> int:
         flag = r["epoch_flag"].to_numpy()
         clk = r["clock_offset_s"].to_numpy()
         per.append((n, t, cuts, cols, flag, clk))
-    order = sorted(((float(p[1][a]), i, k) for i, p in enumerate(per) for k, a in enumerate(p[2][:-1])))
-    for start in range(0, len(order), _OBS_MESSAGES_PER_BLOCK):
-        part = order[start:start + _OBS_MESSAGES_PER_BLOCK]
-        part_times = [t for t, _, _ in part]
+    times, ii_all, kk_all = _obs_order(per)
+    for start in range(0, len(times), _OBS_MESSAGES_PER_BLOCK):
+        part = slice(start, start + _OBS_MESSAGES_PER_BLOCK)
+        part_times, ii, kk = times[part].tolist(), ii_all[part], kk_all[part]
         stamps = unix_ns_list(part_times, out.time_scale)
-        ii = np.array([i for _, i, _ in part], dtype=np.int64)
-        kk = np.array([k for _, _, k in part], dtype=np.int64)
         blob = _obs_texts(per, part_times, stamps, ii, kk)
         datas = blob.split(b"\r")
-        if len(datas) != len(part) + 1:
+        if len(datas) != len(part_times) + 1:
             raise AssertionError("observation messages: a carriage return in a message's text")
         datas.pop()
         names = [per[i][0] for i in ii.tolist()]
@@ -1031,14 +1029,30 @@ def _write_obs_tables(out: McapOut, ch: int, raws: dict, bar=None) -> int:
         at = 0
         for m in nulls:                    # write()'s own rules for what the schema cannot hold
             out.write_encoded(ch, part_times[at:m], stamps[at:m], datas[at:m], names[at:m])
-            t_s, i, k = part[m]
+            i, k = int(ii[m]), int(kk[m])
             cuts = per[i][2]
-            out.write(ch, t_s, _obs_payload(per[i], int(cuts[k]), int(cuts[k + 1])))
+            out.write(ch, part_times[m], _obs_payload(per[i], int(cuts[k]), int(cuts[k + 1])))
             at = m + 1
         out.write_encoded(ch, part_times[at:], stamps[at:], datas[at:], names[at:])
         if bar is not None:
-            bar.update(len(part))
-    return len(order)
+            bar.update(len(part_times))
+    return len(times)
+
+
+def _obs_order(per: list) -> tuple:
+    """(time, receiver, epoch) of the messages of the receivers ``per`` (as in :func:`_write_obs_tables`) in
+    time order, then receiver and epoch (the order of the tuples' sort): arrays."""
+    if not per:
+        return np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    times = np.concatenate([np.asarray(p[1], dtype=float)[p[2][:-1]] for p in per])
+    ii = np.concatenate([np.full(len(p[2]) - 1, i, dtype=np.int64) for i, p in enumerate(per)])
+    kk = np.concatenate([np.arange(len(p[2]) - 1, dtype=np.int64) for p in per])
+    if np.isnan(times).any():                       # (NaN: as the tuples' sort puts it)
+        order = sorted(zip(times.tolist(), ii.tolist(), kk.tolist()))
+        return (np.array([t for t, _, _ in order], dtype=float), np.array([i for _, i, _ in order], dtype=np.int64),
+                np.array([k for _, _, k in order], dtype=np.int64))
+    o = np.lexsort((kk, ii, times))
+    return times[o], ii[o], kk[o]
 
 
 def _obs_texts(per: list, part_times: list, stamps: list, ii: np.ndarray, kk: np.ndarray) -> bytes:
