@@ -709,7 +709,10 @@ class McapOut:
         """:meth:`_note` of messages in a row (``receivers`` None: none holds a scalar ``receiver``)."""
         src = self._sources.get(channel_id)
         if receivers is not None:
-            scalars = [None if isinstance(r, list) or _missing(r) else r for r in receivers]
+            if set(map(type, receivers)) == {str}:      # (names: no list, none missing; no Python work per message)
+                scalars = list(receivers)
+            else:
+                scalars = [None if isinstance(r, list) or _missing(r) else r for r in receivers]
             if src is None and any(r is not None for r in scalars):
                 src = self._sources[channel_id] = [None] * len(self._times[channel_id])
             if src is not None:
