@@ -31,7 +31,6 @@ Layout (format details in docs/gnss-pipeline.md):
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 from concurrent.futures import ThreadPoolExecutor
