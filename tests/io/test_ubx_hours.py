@@ -27,6 +27,7 @@ from cdgps_cli.io.ubx_frames import rtcm_station_arp, split_stream
 from cdgps_cli.io.ubx_hours import check_ubx_block, join_ubx_infos, ubx_hours
 from cdgps_cli.pipeline import gnss_ingest
 from tests._shared import REPO_ROOT
+from tests.io.test_sfrbx import _ubx_frame as _frame
 
 SHARED = REPO_ROOT.parent / "shared" / "data"
 WALK = SHARED / "real-pairs" / "ublox-walk"
@@ -182,17 +183,8 @@ def _retimed(data: bytes, shift_s: float) -> bytes:
             at = off + len(fr)
         if (cls, mid) != (0x02, 0x15):
             continue
-        pl = bytearray(fr[6:-2])
-        tow, week = struct.unpack_from("<dH", pl, 0)
-        t = week * 604800.0 + tow + shift_s
-        new_week = int(t // 604800)
-        struct.pack_into("<dH", pl, 0, t - new_week * 604800.0, new_week)
-        body = fr[2:6] + bytes(pl)
-        a = b = 0
-        for x in body:
-            a = (a + x) & 0xFF
-            b = (b + a) & 0xFF
-        out += [data[at:off], fr[:2] + body + bytes([a, b])]
+        tow, week = struct.unpack_from("<dH", fr, 6)
+        out += [data[at:off], _with_time(fr, week * 604800.0 + tow + shift_s)]
         at = off + len(fr)
     return b"".join(out + [data[at:]])
 
@@ -303,15 +295,6 @@ def test_strict_refuses_a_damaged_log_as_whole(tmp_path, monkeypatch):
                            r".*the first loss is at byte \d+, after the epoch of 2025-08-28 17:31:\d\d"):
             gnss_ingest.ingest_gnss(cfg, tmp_path / "out.mcap", strict=True)     # (the file, its byte and the time)
     assert not (tmp_path / "out.mcap").exists()
-
-
-def _frame(cls: int, mid: int, payload: bytes) -> bytes:
-    body = bytes([cls, mid]) + struct.pack("<H", len(payload)) + payload
-    a = b = 0
-    for x in body:
-        a = (a + x) & 0xFF
-        b = (b + a) & 0xFF
-    return b"\xb5\x62" + body + bytes([a, b])
 
 
 def test_a_log_with_esf_messages_is_read_whole(tmp_path, monkeypatch):
