@@ -336,6 +336,11 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    "the length); shorter baselines neglect it, as RTKLIB's ionoopt=brdc on a short baseline; a large "
                    "value neglects it on any baseline, as init's [gnss] iono_threshold_km "
                    f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['iono_threshold_km']:g}].")
+@click.option("--tropo-threshold-km", "tropo_threshold_km", type=float, default=None,
+              help="Baseline length from which the zenith wet delays of the base and the rover are estimated (a "
+                   "random-walk state each, Niell wet mapping, RTKLIB's tropopt=est); shorter baselines take the "
+                   "a-priori hydrostatic troposphere alone; a large value never estimates them [the "
+                   "--iono-threshold-km value: the long-baseline model estimates both].")
 @click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
               help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
                    "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
@@ -374,7 +379,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, iono_threshold_km, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
+        sync_tol_s, iono_threshold_km, tropo_threshold_km, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
         hold_after_fixes, min_success_rate, float_only, output, pos_frame, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
@@ -388,7 +393,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     if float_only:
         options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
-                       ("sync_tol_s", sync_tol_s), ("iono_threshold_km", iono_threshold_km), ("direction", direction), ("min_success_rate", min_success_rate),
+                       ("sync_tol_s", sync_tol_s), ("iono_threshold_km", iono_threshold_km),
+                       ("tropo_threshold_km", tropo_threshold_km), ("direction", direction), ("min_success_rate", min_success_rate),
                        ("code_correlation_s", code_correlation_s), ("code_noise", code_noise), ("age_noise", age_noise),
                        ("hold_after_fixes", hold_after_fixes),
                        ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability),
@@ -404,6 +410,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
               f"{ep.get('interpolated', 0)} of them interpolated, max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "
               f"{s['fixes_rejected']} fixes rejected where the passes disagree, {s['wrong_fix_resets']} held fixes reset, "
               f"{s['ambiguities_released']} single ambiguities released), ionosphere {s['iono_model']}, "
+              f"wet troposphere {s['wet_troposphere']['model']}, "
               f"signals {' '.join(s['signals'])}, code variance x{s['code_noise']['variance_factor']:.3g} ({s['code_noise']['mode']})")
     if as_json:
         _emit_json({k: v for k, v in s.items()})

@@ -130,6 +130,7 @@ OPTION_BOUNDS: dict[str, Bound] = {
     "survey_deg": Bound(-360.0, 360.0, "deg"),
     "mask_deg": MASK_DEG,
     "iono_threshold_km": Bound(0.0, 1e6, "km"),
+    "tropo_threshold_km": Bound(0.0, 1e6, "km"),
     "rate_hz": Bound(0.0, 1000.0, "Hz", lo_open=True),
     "foxglove_rate_hz": Bound(0.0, 1e6, "Hz"),
     "random_walk": Bound(0.0, 10.0, "m/√s"),

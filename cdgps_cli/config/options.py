@@ -160,6 +160,14 @@ MULTI_GNSS_DEFAULTS = {
     "pos_frame": "llh",                    # a .pos output's coordinates: "llh", "xyz" (ECEF) or "enu" (baseline; RTKLIB out-solformat)
     "iono_sigma_m_per_km": 0.002,          # prior σ of the SD slant ionosphere per km of baseline
     "iono_rw_m_per_sqrt_s": 0.0005,
+    # the zenith wet delays of the base and the rover, estimated (states of the filter) on baselines at least this
+    # long, km; neglected below (the a-priori hydrostatic troposphere alone, each receiver's own): their difference
+    # biases a long baseline's height by decimetres, with a σ that does not say so.  None: iono_threshold_km's value,
+    # so that the long-baseline model estimates both, as RTKLIB's ionoopt=est-stec with tropopt=est (estimating the
+    # wet delays while the ionosphere is neglected gave DELF → ZEGV, 35 km, a wrong fix in both tools)
+    "tropo_threshold_km": None,
+    "tropo_initial_m": 0.15, "tropo_sigma_m": 0.3,      # their start and its σ at each receiver (RTKLIB's INIT_ZWD, std[2])
+    "tropo_rw_m_per_sqrt_s": 1e-4,                       # their random walk (RTKLIB's stats-prntrop)
     **EPOCH_PAIRING_DEFAULTS,
 }
 

@@ -49,7 +49,7 @@ from cdgps_cli.measurement.noise import code_noise_factor, effective_sample_size
 from cdgps_cli.measurement.slips import geometry_free_slips, slip_events
 from cdgps_cli.model.dynamics_models import ConstantVelocity, RandomWalk, Static
 from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_geodetic, ephemeris_rows, sat_position_rows
-from cdgps_cli.model.gps.positioning import ephemeris_coverage, tropo_hydrostatic_m
+from cdgps_cli.model.gps.positioning import ephemeris_coverage, niell_wet_mapping, tropo_hydrostatic_m
 
 __all__ = ["receiver_geometry", "troposphere_at_epochs", "receivers_code_noise", "solve_rtk", "check_common_signals",
            "RTK_MODES"]
@@ -273,17 +273,29 @@ def _groups_with_keys(rows, k, amb_keys, slip_rows):
     return groups
 
 
+#: the state keys of the base's and the rover's zenith wet delays (m), in that order
+WET_KEYS = (("T", "base"), ("T", "rover"))
+
+
 def _prepare_state(st, groups, opt, iono):
     keys = [g["amb_keys"] if "amb_keys" in g else [_amb_key(g, j) for j in range(len(g["sats"]))] for g in groups]
     wanted = {k for ks in keys for k in ks}
     if iono:
         wanted |= {("I", s) for g in groups for s in g["sats"]}
+    wet = opt.get("wet_estimated", False)
+    if wet:
+        wanted |= set(WET_KEYS)
     for g, ks in zip(groups, keys):
         for j in (g["slip_at"] if "slip_at" in g else np.flatnonzero(g["slip"])):
             if ks[j] in st.index:
                 wanted.discard(ks[j])
     st.keep(wanted)
+    if wet and WET_KEYS[0] not in st.index:
+        for key in WET_KEYS:                      # RTKLIB's start: 0.15 ± 0.3 m at each receiver
+            st.add(key, opt["tropo_initial_m"], opt["tropo_sigma_m"] ** 2)
+    wet_col = np.array([st.index[k] for k in WET_KEYS], dtype=np.int64) if wet else None
     for g, ks in zip(groups, keys):
+        g["wet_col"] = wet_col
         est = None
         for j, s in enumerate(g["sats"]):
             if ks[j] not in st.index:
@@ -594,6 +606,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     origin = np.asarray(rover_xyz0_m, float)
     length_km = np.linalg.norm(origin - base_xyz) / 1e3
     iono = opt["iono_sigma_m_per_km"] * length_km if length_km >= opt["iono_threshold_km"] else 0.0
+    opt["tropo_threshold_km"] = wet_threshold_km(opt)
+    opt["wet_estimated"] = opt["rover_elevation"] = length_km >= opt["tropo_threshold_km"]
     pairs = _paired_epochs(base, rover, opt)
     times = pairs.rover_time_s
     code_noise = receivers_code_noise(base, rover, opt) if code_noise is None else code_noise
@@ -602,6 +616,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     opt["age_sigma_m_per_s"] = age_noise["sigma_m_per_s"]
     rows = paired_sd_rows(base, rover, pairs, opt, mask_rover=True,    # the mask at both receivers, as RTKLIB's
                           base_xyz_m=base_xyz)
+    if opt["wet_estimated"]:
+        rows = _with_wet_mapping(rows, base_xyz, origin)
     rows, code_steps = without_code_steps(rows)     # a clock jump in the codes alone: new arcs start from the code
     rows, gf_found = _with_geometry_free_slips(rows)
     n_ep = times.size
@@ -616,6 +632,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
             "fixed": ok, "n_dd_ambiguities": res["n_fixed"], "ratio": res["ratio"],
             "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
+            "wet_troposphere": _wet_summary(res, opt),
             "last_xyz_m": last, "static_xyz_m": last if opt["mode"] == "static" else None, "epoch_pairing": {**summary, "interpolated": rows["interpolated_epochs"]},
             "base_age_s": age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
@@ -628,6 +645,31 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "unflagged_slips": _slip_events(rows, gf_found, pairs.rover_time_s),
             "float_variance": res.get("float_variance"),
             **_velocities(res, ok)}
+
+
+def wet_threshold_km(opt: dict) -> float:
+    """The baseline length from which the zenith wet delays are estimated: ``tropo_threshold_km``, or when None the
+    ionosphere's ``iono_threshold_km``."""
+    t = opt.get("tropo_threshold_km")
+    return float(opt["iono_threshold_km"] if t is None else t)
+
+
+def _with_wet_mapping(rows: dict, base_xyz, rover_xyz) -> dict:
+    """``rows`` (:func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows` with ``el_rover``) with each row's Niell wet
+    mapping factor at the base (``mw_b``, at the base elevation ``el``) and at the rover (``mw_r``), each at its
+    receiver's latitude."""
+    lat_b, lat_r = (float(ecef_to_geodetic(np.asarray(p, float))[0]) for p in (base_xyz, rover_xyz))
+    return dict(rows, mw_b=niell_wet_mapping(rows["el"], lat_b), mw_r=niell_wet_mapping(rows.pop("el_rover"), lat_r))
+
+
+def _wet_summary(res: dict, opt) -> dict:
+    """The JSON summary's word on the zenith wet delays: neglected (short baseline), or estimated with the prior and
+    process noise used and the last epoch's estimates (m) and σ (m) at each receiver."""
+    if not opt["wet_estimated"]:
+        return {"model": "neglected (short baseline)", "threshold_km": opt["tropo_threshold_km"]}
+    last = res.get("wet_last") or {}
+    return {"model": "estimated", "threshold_km": opt["tropo_threshold_km"], "initial_m": opt["tropo_initial_m"],
+            "sigma_m": opt["tropo_sigma_m"], "rw_m_per_sqrt_s": opt["tropo_rw_m_per_sqrt_s"], **last}
 
 
 #: why a paired rover epoch has no solution: the filter only predicted through it (its position would be the
@@ -721,6 +763,8 @@ def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) 
         fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
         bwd = job.result()
     out = _combine(fwd, bwd)
+    if "wet_last" in fwd:
+        out["wet_last"] = fwd["wet_last"]          # (the forward pass's last state: every epoch's information)
     return _with_float_variance_factor(out, fwd, bwd) if not opt["fix"] else dict(out, float_variance=None)
 
 
@@ -785,6 +829,10 @@ def _filter_pass(rows, times, order, opt, base_xyz, origin, iono, progress) -> d
     drive(dyn, [model], EpochGrid(source.time_s[:1]), st.step, hooks=[hook], sink=sink, max_iterations=4)
     drive(dyn, [model], source, st.step, hooks=[hook], sink=sink, max_iterations=2, k0=1)
     out["fixed"] = np.isfinite(out["fixed_xyz"][:, 0])
+    if WET_KEYS[0] in st.index:
+        cols = [st.index[key] for key in WET_KEYS]
+        out["wet_last"] = {"zenith_wet_m": dict(zip(("base", "rover"), st.x[cols].tolist())),
+                           "zenith_wet_sigma_m": dict(zip(("base", "rover"), np.sqrt(np.diag(st.P)[cols]).tolist()))}
     return out
 
 
@@ -818,6 +866,7 @@ class _RtkDynamics:
         self.motion = _motion_model(opt)
         self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
+        self.wet_q = opt["tropo_rw_m_per_sqrt_s"] ** 2 if opt.get("wet_estimated", False) else 0.0
         self._by_dt = {}
 
     #: step lengths whose transition :meth:`_transition` keeps (a record's few distinct spacings: a 10 Hz
@@ -842,6 +891,9 @@ class _RtkDynamics:
         if self.iono:
             ion = [j for j, key in enumerate(self.st.keys) if key[0] == "I"]
             Q[ion, ion] = self.iono_q * dt
+        if self.wet_q:
+            wet = [self.st.index[key] for key in WET_KEYS if key in self.st.index]
+            Q[wet, wet] = self.wet_q * dt
         if self.identity:
             return None, Q, None
         A = np.eye(n)

@@ -692,6 +692,9 @@ def _static_options(options: dict | None) -> dict:
     for key, why in _NOT_YET.items():
         if opt[key]:
             raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
+    if opt["tropo_threshold_km"] is not None:
+        raise CdgpsError(f"static baseline: option tropo_threshold_km = {opt['tropo_threshold_km']!r} is not supported "
+                         "(the static engine does not estimate zenith wet delays: 'cdgps rtk' does)")
     if opt["motion"] not in ("static", "random_walk"):
         raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
     if opt["weighting"] not in GNSS_WEIGHTINGS:

@@ -4,11 +4,12 @@ For one epoch and one signal group g (a constellation and a frequency slot, e.g.
 satellites s = 1…m common to base and rover and reference r (highest elevation at the base), the
 rows are
 
-    ∇Δ(λφ)_s = ∇Δρ_s(x) + λ_s N_s − λ_r N_r − ∇Δ(μ I)_s + ε,       ∇ΔP_s = ∇Δρ_s(x) + ∇Δ(μ I)_s + e
+    ∇Δ(λφ)_s = ∇Δρ_s(x) + λ_s N_s − λ_r N_r − ∇Δ(μ I)_s + ∇Δ(m Z)_s + ε,   ∇ΔP_s = ∇Δρ_s(x) + ∇Δ(μ I)_s + ∇Δ(m Z)_s + e
 
 with x the rover ECEF offset from its linearization origin (m), N the single-difference
 ambiguities of the group (cycles), I optional single-difference slant ionosphere at L1 (m,
-μ = (f_L1/f)²).  λ and μ are per satellite: equal within a CDMA group (so the ambiguity term is
+μ = (f_L1/f)²) and Z optional zenith wet delays of the two receivers (m; each SD's term m_r Z_r − m_b Z_b, m the
+Niell wet mapping factor at each receiver's elevation of the satellite).  λ and μ are per satellite: equal within a CDMA group (so the ambiguity term is
 λ_g (N_s − N_r)), different for GLONASS (FDMA, f = f₀ + k Δf), whose DD ambiguity λ_s N_s − λ_r N_r
 is not an integer times one wavelength — those groups are kept float.  Receiver clocks cancel in the DD; inter-system and inter-frequency biases
 cancel because every group has its own reference satellite (no inter-system DD is formed).  The
@@ -149,7 +150,9 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int, noise_chol=Non
         One per signal group: ``sat_xyz`` (m, 3) for the rover's transmission times, ``sat_base_xyz``
         (m, 3) for the base's, ``ref`` (int), ``lam_m`` (m,) or scalar, ``mu`` (m,) or scalar,
         ``phase_sd_m`` (m,), ``code_sd_m`` (m,), ``var_phase`` / ``var_code`` (m,) m²,
-        ``amb_col`` (m,) state columns of N, ``iono_col`` (m,) columns of I or −1.
+        ``amb_col`` (m,) state columns of N, ``iono_col`` (m,) columns of I or −1; optionally ``wet_col`` (2,)
+        the columns of the base's and the rover's zenith wet delays (m) with ``mw_b`` / ``mw_r`` (m,) their
+        wet mapping factors.
     base_xyz_m, origin_xyz_m : ndarray (3,)
         Base position and the origin of the rover offset, ECEF m.
     n_state : int
@@ -185,6 +188,12 @@ def epoch_rows(x, groups, base_xyz_m, origin_xyz_m, n_state: int, noise_chol=Non
             ion = x[iono]
             Hg[:, iono] -= D * mu
             Hc[:, iono] += D * mu
+        wet = g.get("wet_col")
+        if wet is not None:                     # zenith wet delays [base, rover]: SD m_r Z_r − m_b Z_b, not dispersive
+            geo = geo + D @ (g["mw_r"] * x[wet[1]] - g["mw_b"] * x[wet[0]])
+            for Hk in (Hg, Hc):
+                Hk[:, wet[1]] += D @ g["mw_r"]
+                Hk[:, wet[0]] -= D @ g["mw_b"]
         rs.append(D @ g["phase_sd_m"] - (geo + D @ (lam * n_amb) - D @ (mu * ion)))
         rs.append(D @ g["code_sd_m"] - (geo + D @ (mu * ion)))
         Hs += [Hg, Hc]
@@ -262,7 +271,9 @@ class DDGroupModel:
     ``amb_col`` / ``iono_col`` set by the time :meth:`rows` runs: the driver's ``prepared`` hooks
     open the state columns).  The state is [rover offset from ``origin_xyz_m`` (3, m), SD
     ambiguities (cycles), SD slant ionosphere at L1 (m)…]; its size is read from the drive's
-    context at :meth:`prepare`.  Groups that carry ``epoch_rows`` (:func:`epoch_groups`, when an
+    context at :meth:`prepare`.  Groups with ``wet_col`` (the state columns of the base's and the rover's zenith
+    wet delays, m) and rows with ``mw_b`` / ``mw_r`` (their wet mapping factors) add ``m_r Z_r − m_b Z_b`` to every
+    SD, phase and code alike (the troposphere is not dispersive).  Groups that carry ``epoch_rows`` (:func:`epoch_groups`, when an
     epoch's groups are adjacent rows of the run) give their row columns as that one view instead of
     being concatenated (the same values).  ``remember_last``: :meth:`predict` gives its last result of the same
     rows again for the same state (bit for bit) instead of forming it (a caller that predicts twice at one state).
@@ -315,10 +326,15 @@ class DDGroupModel:
         if has_iono:
             H[r, ion] = -mu
             H[M + r, ion] = mu
+        wet = groups[0].get("wet_col")
+        if wet is not None:                   # zenith wet delays [base, rover]: SD = m_r·Z_r − m_b·Z_b, phase and code
+            wet = (wet, cat("mw_b"), cat("mw_r"))
+            H[r, wet[0][0]] = H[M + r, wet[0][0]] = -wet[1]
+            H[r, wet[0][1]] = H[M + r, wet[0][1]] = wet[2]
         sx = cat("sat_xyz")
         los_b = cat("sat_base_xyz") - self.base_xyz
         ctx = {"sat_xyz": sx, "base_rng": np.sqrt(np.einsum("ij,ij->i", los_b, los_b)),
-               "lam": lam, "mu": mu, "amb": amb, "ion": ion if has_iono else None, "H": H, "M": M}
+               "lam": lam, "mu": mu, "amb": amb, "ion": ion if has_iono else None, "wet": wet, "H": H, "M": M}
         return GroupRows(np.concatenate([cat("phase_sd_m"), cat("code_sd_m")]),
                          np.concatenate([cat("var_phase"), cat("var_code")]), np.concatenate([sizes, sizes]), ctx)
 
@@ -345,6 +361,9 @@ class DDGroupModel:
         H, M = c["H"], c["M"]
         H[:M, :3] = H[M:, :3] = -los / rng[:, None]
         geo = rng - c["base_rng"]
+        wet = c.get("wet")
+        if wet is not None:
+            geo = geo + (wet[2] * x[wet[0][1]] - wet[1] * x[wet[0][0]])
         iono_m = c["mu"] * x[c["ion"]] if c["ion"] is not None else 0.0
         return np.concatenate([geo + c["lam"] * x[c["amb"]] - iono_m, geo + iono_m]), H
 
@@ -510,7 +529,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     ``sat_xyz`` / ``sat_base_xyz`` (N, 3, m), ``phase_sd_m`` / ``code_sd_m`` (m, rover − base, each
     receiver's satellite clock and, when asked, troposphere removed), ``slip``, ``var_phase`` /
     ``var_code`` (m², the base age's share included); ``interpolated_epochs``: how many rover epochs took the
-    base interpolated (in at least one signal group).
+    base interpolated (in at least one signal group); with ``mask_rover`` and ``opt["rover_elevation"]`` true,
+    ``el_rover`` (N,) the rover's elevation of each row too (rad; for the wet troposphere's mapping).
 
     With ``base_xyz_m`` (the base position, ECEF m), a bridged rover epoch that has base epochs on both sides within
     the maximum age takes the base's observations interpolated to its time
@@ -544,7 +564,9 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
         above &= m["eph_row_b"].to_numpy() == m["eph_row_r"].to_numpy()
     if mask_rover:
         above &= m["_el_r"].to_numpy() >= np.radians(opt["mask_deg"])
-    m = _kept_sorted(m, above, ["_ep", "signal", "_row_b", "_row_r"], drop=_UNUSED_AFTER_SORT)
+    keep_el_r = mask_rover and bool(opt.get("rover_elevation"))
+    m = _kept_sorted(m, above, ["_ep", "signal", "_row_b", "_row_r"],
+                     drop=tuple(c for c in _UNUSED_AFTER_SORT if not (keep_el_r and c == "_el_r")))
     m, age, n_interpolated = _base_at_rover_times(m, b, tb, pairs, opt, base_xyz_m)
     del b                                       # (the base's copy: its rows are in ``m`` now)
     names, code = _sorted_codes(m["signal"].to_numpy())
@@ -558,7 +580,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     slip_b = ((m["lli_b"].to_numpy() & 1) > 0) & first_use[epoch]
     half = ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0
     code = code.reshape(-1)
-    return {
+    extra = {"el_rover": m["_el_r"].to_numpy(dtype=float)} if keep_el_r else {}
+    return {**extra,
         "groups": _group_layout(epoch, code, el, half, n_ep),
         "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code,
         "interpolated_epochs": n_interpolated,
@@ -657,6 +680,14 @@ def _sorted_codes(values):
 
 _ROW_KEYS = ("sats", "lam_m", "mu", "sat_xyz", "sat_base_xyz", "phase_sd_m", "code_sd_m", "slip", "half", "var_phase",
              "var_code")
+#: row columns an epoch's groups take when the rows hold them: the wet troposphere's mapping factors at the base and
+#: at the rover (rtk with the zenith wet delays estimated)
+_WET_ROW_KEYS = ("mw_b", "mw_r")
+
+
+def _row_keys(rows) -> tuple:
+    """:data:`_ROW_KEYS`, and :data:`_WET_ROW_KEYS` when ``rows`` hold them."""
+    return _ROW_KEYS + _WET_ROW_KEYS if _WET_ROW_KEYS[0] in rows else _ROW_KEYS
 
 
 def _group_layout(epoch, code, el, half, n_ep) -> dict:
@@ -693,19 +724,20 @@ def epoch_groups(rows, k):
     row range in the run's columns and, when the epoch's groups are adjacent, ``epoch_rows`` (the
     row columns of all of them as one view, shared; :meth:`DDGroupModel.rows` uses it)."""
     lay = rows.get("groups")
+    keys = _row_keys(rows)
     if lay is not None:
         names, code = rows["names"], rows["code"]
         groups = []
         j0, j1 = int(lay["ptr"][k]), int(lay["ptr"][k + 1])
         for j in range(j0, j1):
             a, b = int(lay["start"][j]), int(lay["stop"][j])
-            g = {key: rows[key][a:b] for key in _ROW_KEYS}
+            g = {key: rows[key][a:b] for key in keys}
             g["signal"], g["ref"], g["rows"] = str(names[code[a]]), int(lay["ref"][j]) - a, (a, b)
             groups.append(g)
         if j1 - j0 > 1:
             a, b = int(lay["start"][j0]), int(lay["stop"][j1 - 1])
             if b - a == int((lay["stop"][j0:j1] - lay["start"][j0:j1]).sum()):   # adjacent groups: their rows as one view
-                whole = {key: rows[key][a:b] for key in _ROW_KEYS}
+                whole = {key: rows[key][a:b] for key in keys}
                 for g in groups:
                     g["epoch_rows"] = whole
         return groups
@@ -716,7 +748,7 @@ def epoch_groups(rows, k):
     for a, b in zip(cuts[:-1], cuts[1:]):
         if b - a < 2:
             continue
-        g = {key: rows[key][a:b] for key in _ROW_KEYS}
+        g = {key: rows[key][a:b] for key in keys}
         g["signal"] = str(rows["names"][rows["code"][a]])
         el = np.where(g["half"], -np.inf, rows["el"][a:b]) if not g["half"].all() else rows["el"][a:b]
         g["ref"] = int(np.argmax(el))          # highest, preferring satellites without a half-cycle flag

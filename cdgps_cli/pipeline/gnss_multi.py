@@ -42,6 +42,34 @@ from cdgps_cli.model.gps.positioning import antenna_reference_point_m, rover_del
 __all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
 
+def _wet_option_errors(opt: dict) -> list:
+    """What is wrong with the zenith wet delay options (``tropo_*``) of ``opt``."""
+    bad = []
+    v = opt["tropo_threshold_km"]
+    if v is not None and not (_as_float(v) is not None and math.isfinite(_as_float(v)) and _as_float(v) >= 0):
+        bad.append(f"tropo_threshold_km: expected a baseline length in km >= 0 (or None: iono_threshold_km's), "
+                   f"got {v!r}")
+    for key, low, what in (("tropo_initial_m", -math.inf, "a zenith wet delay in m"),
+                           ("tropo_rw_m_per_sqrt_s", 0.0, "a random walk in m/√s >= 0")):
+        v = _as_float(opt[key])
+        if not (v is not None and math.isfinite(v) and v >= low):
+            bad.append(f"{key}: expected {what}, got {opt[key]!r}")
+    v = _as_float(opt["tropo_sigma_m"])
+    if not (v is not None and math.isfinite(v) and v > 0):
+        bad.append(f"tropo_sigma_m: expected a σ in m > 0, got {opt['tropo_sigma_m']!r}")
+    return bad
+
+
+def _as_float(v) -> float | None:
+    """``v`` as a float, None when it is not a number (a bool is not)."""
+    if isinstance(v, bool):
+        return None
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return None
+
+
 def validate_options(options: dict) -> dict:
     """Options merged over MULTI_GNSS_DEFAULTS; CdgpsError listing every bad key at once."""
     opt = {**MULTI_GNSS_DEFAULTS, **options}
@@ -52,6 +80,7 @@ def validate_options(options: dict) -> dict:
         bad.append(f"pos_frame: expected one of {', '.join(repr(f) for f in POS_FRAMES)}, got {opt['pos_frame']!r}")
     if not (np.isfinite(float(opt["iono_threshold_km"])) and float(opt["iono_threshold_km"]) >= 0):
         bad.append(f"iono_threshold_km: expected a baseline length in km >= 0, got {opt['iono_threshold_km']}")
+    bad += _wet_option_errors(opt)
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
@@ -293,6 +322,7 @@ def _summary(res: dict, per_epoch: bool) -> dict:
             "last_xyz_m": res["last_xyz_m"].tolist(),     # the last epoch's solution (fixed when it is), ECEF m
             "static_xyz_m": None if res["static_xyz_m"] is None else res["static_xyz_m"].tolist(),  # --mode static only
             "iono_model": res["iono_model"],
+            "wet_troposphere": res["wet_troposphere"],       # zenith wet delays: estimated (last values, σ) or neglected
             "rover_troposphere": "at each epoch's solution" if per_epoch else "at the a-priori position"}
 
 
@@ -367,7 +397,8 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     sig_enu = np.sqrt(np.abs(np.einsum("nii->ni", cov_enu)))
     suffix = Path(str(out_path)).suffix.lower()
     desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
-            f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}")
+            f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}"
+            + (", zenith wet delays estimated" if res["wet_troposphere"]["model"] == "estimated" else ""))
     if suffix == ".pos":
         bl, bo, bh = ecef_to_geodetic(np.asarray(base_xyz, float))
         ref = (" ".join(f"{v:.4f}" for v in np.asarray(base_xyz, float)) if opt["pos_frame"] == "xyz"   # as RTKLIB's

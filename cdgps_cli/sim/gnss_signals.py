@@ -8,7 +8,7 @@ row per epoch, satellite and signal:
 
 with ρ the geometric range (light time and Earth rotation, :func:`~cdgps_cli.model.gps.orbits.sat_position_at_reception`)
 at the true reception instant ``tag − dt``, dt the receiver clock (drifting linearly), T the a priori
-hydrostatic troposphere, N_g an integer per signal, satellite and lock segment (a new one after each
+hydrostatic troposphere (plus, when asked, a zenith wet delay mapped by Niell's wet function), N_g an integer per signal, satellite and lock segment (a new one after each
 visibility gap), f_g a fractional phase bias per signal common to all satellites (the receiver's
 inter-frequency phase bias: it cancels in double differences within a signal), ε white with
 σ² = a² + b²/sin²el per signal (independent between signals).  Time tags are the nominal epochs (a
@@ -30,7 +30,7 @@ import pandas as pd
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.core.signals import signal
 from cdgps_cli.model.gps.orbits import azimuth_elevation, ecef_to_geodetic, enu_matrix, sat_position_at_reception
-from cdgps_cli.model.gps.positioning import CN0_MODEL, ephemeris_coverage, tropo_hydrostatic_m
+from cdgps_cli.model.gps.positioning import CN0_MODEL, ephemeris_coverage, niell_wet_mapping, tropo_hydrostatic_m
 
 __all__ = ["simulate_receiver_signals", "SIGNAL_OBS_COLUMNS"]
 
@@ -44,7 +44,7 @@ def _sigma(a_m: float, b_m: float, el_rad):
 def simulate_receiver_signals(nav: pd.DataFrame, rx_ecef_m, t_start_s: float, n_epochs: int, interval_s: float,
                               signals, *, offset_enu_m=None, seed: int = 0, mask_rad: float = math.radians(10.0),
                               phase_sigma_m: tuple = (0.003, 0.003), code_sigma_m: float = 0.5,
-                              clock_drift_ms: float = 0.0, troposphere: bool = True) -> dict:
+                              clock_drift_ms: float = 0.0, troposphere: bool = True, zenith_wet_m=0.0) -> dict:
     """Observations of ``signals`` at one receiver (see the module docstring for the model).
 
     Parameters
@@ -66,6 +66,12 @@ def simulate_receiver_signals(nav: pd.DataFrame, rx_ecef_m, t_start_s: float, n_
         Phase noise σ² = a² + b²/sin²el, m; code noise ``code_sigma_m`` (white, m).
     clock_drift_ms : float
         Receiver clock offset at the end of the span (it starts at 0 and drifts linearly), ms.
+    troposphere : bool
+        The a-priori hydrostatic troposphere T in the observations.
+    zenith_wet_m : float or array_like (n_epochs,)
+        Zenith wet delay at the receiver, m (per epoch when an array): each observation is delayed by it times the
+        Niell wet mapping factor at its elevation (:func:`~cdgps_cli.model.gps.positioning.niell_wet_mapping`),
+        phase and code alike; 0 (the default) leaves it out.
 
     Returns
     -------
@@ -81,6 +87,7 @@ def simulate_receiver_signals(nav: pd.DataFrame, rx_ecef_m, t_start_s: float, n_
     clock = clock_drift_ms * 1e-3 * (t_nom - t_nom[0]) / span
     x0 = np.asarray(rx_ecef_m, float)
     lat, lon, h = ecef_to_geodetic(x0)
+    zwd = np.broadcast_to(np.asarray(zenith_wet_m, dtype=float), t_nom.shape)
     track = np.broadcast_to(x0, (t_nom.size, 3)) if offset_enu_m is None else x0 + np.asarray(offset_enu_m, float) @ enu_matrix(lat, lon)
     fracs = {g: float(gen.uniform(-0.5, 0.5)) for g in names}
     systems = {signal(g).system for g in names}
@@ -100,6 +107,8 @@ def simulate_receiver_signals(nav: pd.DataFrame, rx_ecef_m, t_start_s: float, n_
             continue
         trop = tropo_hydrostatic_m(el, lat, h, t_nom[idx] - clock[idx]) if troposphere else 0.0
         common = rho + SPEED_OF_LIGHT_M_S * (clock[idx] - dts) + trop
+        if np.any(zwd):
+            common = common + zwd[idx] * niell_wet_mapping(el, lat)
         seg_start = np.r_[True, np.diff(idx) > 1]
         seg_id = np.cumsum(seg_start) - 1
         for g in (g for g in names if signal(g).system == s[0]):

@@ -5,21 +5,23 @@ import numpy as np
 from cdgps_cli.measurement.dd_signals import epoch_rows
 
 
-def _case(iono: bool):
+def _case(iono: bool, wet: bool = False):
     rng = np.random.default_rng(4)
     base = np.array([4157177.0, 671230.0, 4774767.0])
     origin = base + np.array([-320.0, 1978.0, 0.0])
     sat = base + rng.normal(size=(5, 3)) * 1.2e7 + np.array([1.5e7, 0, 1.5e7])
-    n = 3 + 5 + (5 if iono else 0)
+    n = 3 + 5 + (5 if iono else 0) + (2 if wet else 0)
     g = {"sat_xyz": sat, "ref": 2, "lam_m": 0.19, "mu": 1.6, "phase_sd_m": rng.normal(size=5), "code_sd_m": rng.normal(size=5),
          "var_phase": np.full(5, 1e-5), "var_code": np.full(5, 0.1), "amb_col": np.arange(3, 8),
          "iono_col": np.arange(8, 13) if iono else np.full(5, -1)}
+    if wet:       # the base's and the rover's zenith wet delays, last; mapping factors of a 164 km baseline's elevations
+        g.update(wet_col=np.array([n - 2, n - 1]), mw_b=rng.uniform(1.0, 3.9, 5), mw_r=rng.uniform(1.0, 3.9, 5))
     return rng.normal(size=n), [g], base, origin, n
 
 
 def test_jacobian_matches_finite_differences():
-    for iono in (False, True):
-        x, groups, base, origin, n = _case(iono)
+    for iono, wet in ((False, False), (True, False), (True, True), (False, True)):
+        x, groups, base, origin, n = _case(iono, wet)
         r0, H, _ = epoch_rows(x, groups, base, origin, n)
         for j in range(n):
             h = 1e-2 if j < 3 else 1e-4   # metres on ranges of 2e7 m: rounding ~1e-9 m
@@ -27,7 +29,39 @@ def test_jacobian_matches_finite_differences():
             xp[j] += h
             xm[j] -= h
             fd = -(epoch_rows(xp, groups, base, origin, n)[0] - epoch_rows(xm, groups, base, origin, n)[0]) / (2 * h)
-            assert np.allclose(H[:, j], fd, atol=1e-6), (iono, j)
+            assert np.allclose(H[:, j], fd, atol=1e-6), (iono, wet, j)
+
+
+def test_wet_delays_enter_phase_and_code_alike_and_the_engine_model_carries_their_information():
+    """The zenith wet delays Z_b, Z_r add m_r Z_r − m_b Z_b to every SD, phase and code (not dispersive): in
+    epoch_rows (D applied, here checked term by term) and in the engine's DDGroupModel, whose whitened SD rows carry
+    the same information as epoch_rows' Cholesky-whitened DD rows."""
+    from types import SimpleNamespace
+
+    from cdgps_cli.measurement.dd_signals import DDGroupModel, dd_operator
+
+    x, groups, base, origin, n = _case(True, True)
+    g = groups[0]
+    r_wet, H_wet, L = epoch_rows(x, groups, base, origin, n)
+    r_dry, H_dry, _ = epoch_rows(x, [{k: v for k, v in g.items() if k not in ("wet_col", "mw_b", "mw_r")}], base,
+                                 origin, n)
+    D = dd_operator(5, 2)
+    term = D @ (g["mw_r"] * x[n - 1] - g["mw_b"] * x[n - 2])
+    np.testing.assert_allclose(r_dry - r_wet, np.r_[term, term], atol=1e-9)
+    np.testing.assert_allclose(H_wet[:, n - 1], np.r_[D @ g["mw_r"], D @ g["mw_r"]], rtol=1e-14)
+    np.testing.assert_allclose(H_wet[:, n - 2], -np.r_[D @ g["mw_b"], D @ g["mw_b"]], rtol=1e-14)
+    np.testing.assert_array_equal(H_wet[:, :n - 2], H_dry[:, :n - 2])
+    gm = dict(g, sats=np.array([f"G{k:02d}" for k in range(5)], dtype=object), sat_base_xyz=g["sat_xyz"],
+              lam_m=np.full(5, 0.19), mu=np.full(5, 1.6))
+    model = DDGroupModel(lambda k: [gm], base, origin)
+    model.prepare(0, SimpleNamespace(x=x))
+    rows = model.rows(0)
+    h, H = model.predict(x, rows)
+    Hw, vw = rows.whiten(H), rows.whiten(rows.z_m - h)
+    Hd, rd = np.linalg.solve(L, H_wet), np.linalg.solve(L, r_wet)
+    np.testing.assert_allclose(Hw.T @ Hw, Hd.T @ Hd, rtol=1e-9, atol=1e-9 * np.abs(Hd.T @ Hd).max())
+    np.testing.assert_allclose(Hw.T @ vw, Hd.T @ rd, rtol=1e-8, atol=1e-8 * np.abs(Hd.T @ rd).max())
+    np.testing.assert_allclose(vw @ vw, rd @ rd, rtol=1e-9)
 
 
 def test_noise_is_dd_covariance_and_ref_has_no_row():

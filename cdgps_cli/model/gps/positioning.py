@@ -59,6 +59,7 @@ __all__ = [
     "day_of_year",
     "tropo_zenith_hydrostatic_m",
     "niell_hydrostatic_mapping",
+    "niell_wet_mapping",
     "tropo_hydrostatic_m",
     "ephemeris_coverage",
     "ephemeris_coverage_all",
@@ -234,6 +235,46 @@ def niell_hydrostatic_mapping(el_rad, lat_rad, h_m, doy) -> np.ndarray:
     m = _marini(sin_el, *coef)
     dm = (1.0 / sin_el - _marini(sin_el, *_NMF_HEIGHT)) * h / 1e3
     return np.where(el > 0.0, m + dm, 0.0)
+
+
+# Niell (1996), Table 4: wet a, b, c at latitudes 15, 30, 45, 60, 75° (no seasonal term, no height correction)
+_NMF_WET = np.array([
+    [5.8021897e-4, 5.6794847e-4, 5.8118019e-4, 5.9727542e-4, 6.1641693e-4],
+    [1.4275268e-3, 1.5138625e-3, 1.4572752e-3, 1.5007428e-3, 1.7599082e-3],
+    [4.3472961e-2, 4.6729510e-2, 4.3908931e-2, 4.4626982e-2, 5.4736038e-2],
+])
+
+
+def niell_wet_mapping(el_rad, lat_rad) -> np.ndarray:
+    """Niell (1996) wet mapping function: the slant wet delay is this factor times the zenith wet delay.
+
+    The three coefficients of the Marini continued fraction are interpolated linearly in |latitude| between
+    the table's rows (15–75°; constant beyond them), as RTKLIB's ``nmf``; the wet function has neither a
+    seasonal term nor a height correction.
+
+    Parameters
+    ----------
+    el_rad : array_like
+        Elevation, rad (≤ 0 gives 0).
+    lat_rad : float or array_like
+        Geodetic latitude, rad.
+
+    Returns
+    -------
+    ndarray
+        Wet mapping factor (1 at zenith, about 3.8 at 15° elevation, close to 1/sin(el) above 30°).
+
+    References
+    ----------
+    A. E. Niell, "Global mapping functions for the atmosphere delay at radio wavelengths", J. Geophys.
+    Res. 101(B2), 3227–3246, 1996 (Table 4).
+    """
+    el = np.asarray(el_rad, dtype=np.float64)
+    alat = np.abs(np.degrees(np.asarray(lat_rad, dtype=np.float64)))
+    grid = np.array([15.0, 30.0, 45.0, 60.0, 75.0])
+    coef = [np.interp(alat, grid, _NMF_WET[k]) for k in range(3)]
+    m = _marini(np.sin(np.maximum(el, 1e-6)), *coef)
+    return np.where(el > 0.0, m, 0.0)
 
 
 def tropo_hydrostatic_m(el_rad, lat_rad, h_m, t_gps_s) -> np.ndarray:
