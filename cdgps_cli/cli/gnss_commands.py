@@ -36,11 +36,15 @@ from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _em
               help="Fix GLONASS double differences as integers too (identical receivers only: their inter-frequency "
                    "biases cancel); else GLONASS stays float.")
 @click.option("--no-troposphere", is_flag=True, help="No a priori hydrostatic troposphere.")
+@click.option("--iono-threshold-km", "iono_threshold_km", type=float, default=None,
+              help="Refuse a baseline at least this long: this static solution neglects the DD ionosphere and the "
+                   "zenith wet delays (use 'cdgps rtk' there), as init's [gnss] iono_threshold_km "
+                   f"[{GNSS_DEFAULTS['iono_threshold_km']:g}].")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
 def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
-                 float_only, glonass_fix, no_troposphere, output, as_json):
+                 float_only, glonass_fix, no_troposphere, iono_threshold_km, output, as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
 
@@ -52,8 +56,11 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
         cfg = load_baseline_job(job)
         stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
         positions, origins = cfg.get("positions", {}), cfg.get("origins", {})
+        iono = cfg["iono_threshold_km"]
     else:
         stations, navs, mst, opt = {}, [], None, BaselineOptions()
+        iono = GNSS_DEFAULTS["iono_threshold_km"]
+    iono = iono if iono_threshold_km is None else iono_threshold_km
     if rinex:
         stations = _parse_named_files(rinex, "--rinex", "NAME")
         origins = {k: v for k, v in origins.items() if k != "rinex"}     # named by --rinex, not the job
@@ -96,7 +103,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
     res = json_safe(baseline_from_files(stations, navs, mst, opt,
                                         positions={k: v for k, v in positions.items() if k in stations},
-                                        origins=origins))
+                                        origins=origins, iono_threshold_km=iono))
     if job:
         res["inputs"]["config"] = str(job)
     timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs

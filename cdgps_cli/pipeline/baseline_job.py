@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from cdgps_cli.config.options import IONO_THRESHOLD_KM
 from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
@@ -69,11 +70,14 @@ def refuse_missing_files(rinex: dict, nav_paths, origins: dict | None = None) ->
 
 
 def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
-                        positions: dict | None = None, origins: dict | None = None) -> dict:
+                        positions: dict | None = None, origins: dict | None = None,
+                        iono_threshold_km: float | None = IONO_THRESHOLD_KM) -> dict:
     """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
     names to observation files, ``master`` is one of them; ``positions`` optionally gives
     ``{name: ECEF m}`` instead of the RINEX header positions; ``origins`` names where each path was
-    given (:func:`refuse_missing_files`)."""
+    given (:func:`refuse_missing_files`).  A baseline at least ``iono_threshold_km`` long is refused, as ``init``
+    refuses it (:func:`~cdgps_cli.estimation.baseline.check_iono_rule`: this solution neglects the DD ionosphere and
+    the wet delays); None: not checked."""
     if len(rinex) != 2:
         raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
                          f"{', '.join(rinex) or 'none'}")
@@ -91,7 +95,7 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     pos = positions or {}
     try:
         res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
-                                    rover_xyz=pos.get(rover), engine=True)
+                                    rover_xyz=pos.get(rover), engine=True, iono_threshold_km=iono_threshold_km)
     except CdgpsError as exc:
         if str(exc).startswith("the navigation data does not cover"):     # name the files that fell short
             raise CdgpsError(f"{exc} (navigation file(s) given: {', '.join(map(str, nav_paths))})") from None
@@ -108,7 +112,7 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
 _JOB_KEYS = {
     "name": str, "description": str, "master": str, "nav": list, "rinex": dict, "mask_deg": (int, float),
     "ratio": (int, float), "partial": bool, "weighting": str, "troposphere": bool, "sigma_a_m": (int, float),
-    "sigma_b_m": (int, float), "code_ratio": (int, float), "max_gap_s": (int, float),
+    "sigma_b_m": (int, float), "code_ratio": (int, float), "max_gap_s": (int, float), "iono_threshold_km": (int, float),
 }
 
 
@@ -193,8 +197,11 @@ def load_baseline_job(path) -> dict:
     except CdgpsError as exc:
         raise CdgpsError(f"{p}: {exc}") from None
     origins = {"rinex": {n: f"{p}: [baseline.rinex] {n}" for n in rinex}, "nav": f"{p}: [baseline] nav"}
+    iono = float(b.get("iono_threshold_km", IONO_THRESHOLD_KM))
+    if not (math.isfinite(iono) and iono >= 0):
+        raise CdgpsError(f"{p}: baseline.iono_threshold_km: expected a baseline length in km >= 0, got {iono!r}")
     return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt,
-            "positions": {}, "origins": origins}
+            "positions": {}, "origins": origins, "iono_threshold_km": iono}
 
 
 def _job_from_gnss_config(p: Path, text: str) -> dict:
@@ -221,7 +228,7 @@ def _job_from_gnss_config(p: Path, text: str) -> dict:
     except CdgpsError as exc:
         raise CdgpsError(f"{p}: {exc}") from None
     return {"name": cfg.name, "master": cfg.master, "rinex": {a.name: Path(a.rinex) for a in cfg.antennas},
-            "nav": [Path(n) for n in cfg.nav], "options": opt,
+            "nav": [Path(n) for n in cfg.nav], "options": opt, "iono_threshold_km": cfg.iono_threshold_km,
             "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None},
             "origins": {"rinex": {a.name: f"{p}: [gnss.antennas.{a.name}] rinex" for a in cfg.antennas},
                         "nav": f"{p}: [gnss] nav"}}

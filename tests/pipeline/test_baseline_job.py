@@ -114,3 +114,29 @@ def test_baseline_names_the_job_key_of_a_missing_file(tmp_path, form, missing):
     r = CliRunner().invoke(main, ["baseline", "--config", str(job), *opt, "-o", str(out)])
     assert r.exit_code == 2, r.output
     assert ("--rinex B: gone.obs" if missing == "rinex" else "--nav: gone.nav") in r.output, r.output
+
+
+def test_baseline_refuses_a_long_baseline_as_init_does(tmp_path):
+    """`cdgps baseline` is init's static solution: it neglects the DD ionosphere and the wet delays, so the real 35 km
+    pair DELF → ZEGV (tests/data/georust-delf-zegv) is refused at the same threshold (exit 2, nothing written) —
+    with the IGS broadcast file it was "partially fixed" 0.49 m off with a σ of millimetres — and taken with
+    ``--iono-threshold-km`` raised past it; a [baseline] job's key is checked."""
+    from _shared import run_cli
+
+    data = Path(__file__).resolve().parents[1] / "data" / "georust-delf-zegv"
+    args = ("baseline", "--rinex", f"delf={data / 'delf0010.21d'}", "--rinex", f"zegv={data / 'zegv0010.21d'}",
+            "--nav", data / "cbw10010.21n.gz", "--master", "delf")
+    out = tmp_path / "b.json"
+    r = run_cli(*args, "-o", out)
+    text = " ".join(r.output.split())
+    assert r.exit_code == 2 and not out.exists() and "Traceback" not in r.output, r.output
+    assert "35.272 km long" in text and "--iono-threshold-km" in text and "'cdgps rtk'" in text, text
+    r = run_cli(*args, "-o", out, "--iono-threshold-km", 40)
+    assert "at or above" not in " ".join(r.output.split()) and "Traceback" not in r.output, r.output
+    job = tmp_path / "job.toml"
+    job.write_text(f'[baseline]\nmaster = "delf"\nnav = ["{data / "cbw10010.21n.gz"}"]\niono_threshold_km = 40\n'
+                   f'[baseline.rinex]\ndelf = "{data / "delf0010.21d"}"\nzegv = "{data / "zegv0010.21d"}"\n')
+    assert load_baseline_job(job)["iono_threshold_km"] == 40.0
+    job.write_text(job.read_text().replace("iono_threshold_km = 40", "iono_threshold_km = -1"))
+    with pytest.raises(CdgpsError, match=r"baseline.iono_threshold_km: expected a baseline length in km >= 0"):
+        load_baseline_job(job)

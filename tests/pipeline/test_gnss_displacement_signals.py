@@ -213,6 +213,30 @@ def test_init_refuses_a_signal_baseline_at_the_ionosphere_threshold(bds_pair):
             assert r.exit_code == 0 and json.loads(out.read_text())["rovers"]["rover"]["solution"] == "fixed", r.output
 
 
+def test_init_refuses_a_gps_l1_baseline_at_the_ionosphere_threshold_too(tmp_path):
+    """GPS L1 alone (no [gnss] signals) neglects the DD ionosphere and the wet delays as much: the real 35 km pair
+    DELF → ZEGV (tests/data/georust-delf-zegv) is refused likewise (with the IGS broadcast file, kept outside the
+    repository, it used to be "fixed" 0.49 m off with a σ of 4–7 mm), and taken once the key is raised past it."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[1] / "data" / "georust-delf-zegv"
+    text = ('[gnss]\nname = "delf-zegv"\nmaster = "delf"\nnav = ["{nav}"]\n{extra}[gnss.displacement]\nmodel = "static"\n'
+            '[gnss.antennas.delf]\nrinex = "{d}/delf0010.21d"\n[gnss.antennas.zegv]\nrinex = "{d}/zegv0010.21d"\n')
+    for extra, refused in (("", True), ("iono_threshold_km = 40.0\n", False)):
+        cfg, run, out = tmp_path / f"c{refused}.toml", tmp_path / f"r{refused}.mcap", tmp_path / f"i{refused}.json"
+        cfg.write_text(text.format(nav=data / "cbw10010.21n.gz", d=data, extra=extra))
+        run_commands(("ingest", "--config", cfg, "-o", run))
+        r = run_cli("init", run, "-o", out)
+        text_out = " ".join(r.output.split())
+        if refused:
+            assert r.exit_code == 2 and "Traceback" not in r.output and not out.exists(), r.output
+            assert "35.272 km long" in text_out and "gnss.iono_threshold_km = 10 km" in text_out, text_out
+            assert "'cdgps rtk'" in text_out and "zenith wet delays" in text_out, text_out
+        else:            # (the third station's navigation file covers two satellites: what init makes of them aside)
+            assert r.exit_code in (0, 2) and "Traceback" not in r.output, r.output
+            assert "at or above gnss.iono_threshold_km" not in text_out, text_out
+
+
 @pytest.mark.parametrize("length_m,refused", [(9999.999, False), (10000.0, True), (25000.0, True)])
 def test_the_ionosphere_rule_refuses_at_or_above_the_threshold(length_m, refused):
     from cdgps_cli.core.errors import CdgpsError
