@@ -1,6 +1,6 @@
 """Long baselines side by side with RTKLIB: the ionosphere and the zenith wet delays neglected or estimated.
 
-``python benchmarks/long_baseline.py --data DIR [--out FILE]``
+``python benchmarks/long_baseline.py --data DIR [--antex FILE] [--out FILE]``
 
 DIR holds the two real Dutch pairs of session 24 and their navigation file, which stay outside the repository:
 ``delf0010.21d``, ``zegv0010.21d``, ``eijs0010.21d`` (Hatanaka RINEX 2.11, 30 s, 2021-01-01; georust/rinex at 95c3d35,
@@ -14,7 +14,10 @@ delta: ``ionoopt`` brdc / est-stec, ``tropopt`` saas / est) and ``cdgps rtk --mo
 epochs, the last position's east / north / up from the rover's header coordinate (mm) and, for ours, its σ (mm) and the
 wet delays' last estimates.  The header coordinates are the marker's and neither tool applies antenna phase-centre
 models: mixed antennas (EIJS LEIAR25.R4 against DELF's TRM29659.00) put a right solution some centimetres from them.
-Writes ``docs/benchmarks/long_baseline.json``.
+With ``--antex FILE`` (RTKLIB's ``data/igs05.atx``, which has both of EIJS's and DELF's antennas; ZEGV's is newer)
+EIJS is run again by both with the receiver antenna models (``cdgps rtk --antex``; ``rnx2rtkp`` with
+``file-rcvantfile``, ``ant1-anttype=*``, ``ant2-anttype=*`` and ``pos1-posopt2=on`` for the variations), the default
+model of each.  Writes ``docs/benchmarks/long_baseline.json``.
 """
 
 from __future__ import annotations
@@ -53,12 +56,13 @@ def _enu_mm(ref: np.ndarray, xyz: np.ndarray) -> list:
     return np.round(np.asarray(ecef_to_enu(xyz, ref)) * 1e3, 1).tolist()
 
 
-def _rtklib(work: Path, rover: str, iono: bool, wet: bool) -> dict:
+def _rtklib(work: Path, rover: str, iono: bool, wet: bool, antex: Path | None = None) -> dict:
     conf = work / "c.conf"
+    ant = ([f"file-rcvantfile={antex}", "ant1-anttype=*", "ant2-anttype=*", "pos1-posopt2=on"] if antex else [])
     conf.write_text("\n".join([
         "pos1-posmode=static", "pos1-frequency=l1+l2", "pos1-elmask=15", "pos1-navsys=1",
         f"pos1-ionoopt={'est-stec' if iono else 'brdc'}", f"pos1-tropopt={'est' if wet else 'saas'}",
-        "pos2-armode=continuous", "pos2-arthres=3", "ant2-postype=rinexhead", "out-solformat=xyz", ""]))
+        "pos2-armode=continuous", "pos2-arthres=3", "ant2-postype=rinexhead", "out-solformat=xyz", *ant, ""]))
     out = work / f"rtklib_{rover}.pos"
     p = subprocess.run(["rnx2rtkp", "-k", str(conf), "-o", str(out), str(work / f"{rover}0010.21o"),
                         str(work / "delf0010.21o"), str(work / "brdc0010.21n")], capture_output=True, text=True)
@@ -89,6 +93,7 @@ def _ours(work: Path, data: Path, rover: str, extra: list) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, required=True, help="the folder of the pairs' files (module docstring)")
+    ap.add_argument("--antex", type=Path, default=None, help="an ANTEX file with EIJS's and DELF's antennas (docstring)")
     ap.add_argument("--out", type=Path, default=OUT)
     a = ap.parse_args()
     import hatanaka  # noqa: PLC0415
@@ -108,6 +113,13 @@ def main() -> None:
             runs.append({"rover": rover, "model": "cdgps defaults (iono and wet estimated from 10 km)",
                          "cdgps_kinematic_combined": _ours(work, a.data, rover, []),
                          "cdgps_static_float": _ours(work, a.data, rover, ["--mode", "static", "--float-only"])})
+            print(json.dumps(runs[-1]), flush=True)
+        if a.antex is not None:
+            antex = a.antex.resolve()
+            runs.append({"rover": "eijs", "model": "iono and wet estimated, receiver antenna models (ANTEX)",
+                         "antex": str(a.antex), "rtklib": _rtklib(work, "eijs", True, True, antex),
+                         "cdgps_static": _ours(work, a.data, "eijs", ["--mode", "static", "--antex", str(antex)]),
+                         "cdgps_kinematic_combined": _ours(work, a.data, "eijs", ["--antex", str(antex)])})
             print(json.dumps(runs[-1]), flush=True)
     a.out.write_text(json.dumps({"machine": {"python": platform.python_version(), "cores": os.cpu_count()},
                                  "rnx2rtkp": "Debian rtklib 2.4.3 b34", "runs": runs}, indent=1) + "\n")

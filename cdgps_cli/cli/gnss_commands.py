@@ -348,6 +348,16 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    "random-walk state each, Niell wet mapping, RTKLIB's tropopt=est); shorter baselines take the "
                    "a-priori hydrostatic troposphere alone; a large value never estimates them [the "
                    "--iono-threshold-km value: the long-baseline model estimates both].")
+@click.option("--antex", "antex", type=click.Path(dir_okay=False), default=None,
+              help="ANTEX file (IGS .atx): the receiver antennas' phase-centre offsets and elevation variations are "
+                   "taken out of the observations (RTKLIB's file-rcvantfile; mixed antennas differ by centimetres in "
+                   "height). Each antenna is its RINEX header's ANT # / TYPE unless --base-antenna / --rover-antenna "
+                   "name it [none].")
+@click.option("--base-antenna", "base_antenna", default=None,
+              help="The base's antenna type and radome as ANTEX writes them (e.g. 'LEIAR25.R4 LEIT'), or 'none' for no "
+                   "model (with --antex) [its header's].")
+@click.option("--rover-antenna", "rover_antenna", default=None,
+              help="The rover's antenna, as --base-antenna [its header's].")
 @click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
               help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
                    "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
@@ -386,7 +396,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary (epochs used and why others were not, fixes) on stdout.")
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
-        sync_tol_s, iono_threshold_km, tropo_threshold_km, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
+        sync_tol_s, iono_threshold_km, tropo_threshold_km, antex, base_antenna, rover_antenna, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
         hold_after_fixes, min_success_rate, float_only, output, pos_frame, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
@@ -401,7 +411,8 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
         options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),
                        ("sync_tol_s", sync_tol_s), ("iono_threshold_km", iono_threshold_km),
-                       ("tropo_threshold_km", tropo_threshold_km), ("direction", direction), ("min_success_rate", min_success_rate),
+                       ("tropo_threshold_km", tropo_threshold_km), ("antex", antex), ("base_antenna", base_antenna),
+                       ("rover_antenna", rover_antenna), ("direction", direction), ("min_success_rate", min_success_rate),
                        ("code_correlation_s", code_correlation_s), ("code_noise", code_noise), ("age_noise", age_noise),
                        ("hold_after_fixes", hold_after_fixes),
                        ("fix_and_hold", fix_and_hold), ("wrong_fix_probability", wrong_fix_probability),

@@ -168,6 +168,11 @@ MULTI_GNSS_DEFAULTS = {
     "tropo_threshold_km": None,
     "tropo_initial_m": 0.15, "tropo_sigma_m": 0.3,      # their start and its σ at each receiver (RTKLIB's INIT_ZWD, std[2])
     "tropo_rw_m_per_sqrt_s": 1e-4,                       # their random walk (RTKLIB's stats-prntrop)
+    # an ANTEX file (IGS .atx) whose receiver antenna calibrations (phase-centre offset and elevation variations, as
+    # RTKLIB's antmodel) are taken out of the observations; None: none (the antennas' offsets differ by centimetres
+    # between types, which a long baseline of mixed antennas shows in its height).  Each receiver's antenna is its
+    # RINEX header's ANT # / TYPE unless named here ("none": no model for that receiver)
+    "antex": None, "base_antenna": None, "rover_antenna": None,
     **EPOCH_PAIRING_DEFAULTS,
 }
 

@@ -695,6 +695,10 @@ def _static_options(options: dict | None) -> dict:
     if opt["tropo_threshold_km"] is not None:
         raise CdgpsError(f"static baseline: option tropo_threshold_km = {opt['tropo_threshold_km']!r} is not supported "
                          "(the static engine does not estimate zenith wet delays: 'cdgps rtk' does)")
+    for key in ("antex", "base_antenna", "rover_antenna"):
+        if opt[key] is not None:
+            raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported (antenna models are taken "
+                             "out of the observation tables before: 'cdgps rtk --antex')")
     if opt["motion"] not in ("static", "random_walk"):
         raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
     if opt["weighting"] not in GNSS_WEIGHTINGS:

@@ -36,14 +36,16 @@ from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_text, read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
-from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
+from cdgps_cli.io.antex import antenna_range_m, find_antenna, read_antex
+from cdgps_cli.model.gps.orbits import azimuth_elevation, ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m, rover_delta_note, spp_spread
 
 __all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
 
-def _wet_option_errors(opt: dict) -> list:
-    """What is wrong with the zenith wet delay options (``tropo_*``) of ``opt``."""
+def _model_option_errors(opt: dict) -> list:
+    """What is wrong with the zenith wet delay options (``tropo_*``) and the antenna options (``antex``,
+    ``base_antenna``, ``rover_antenna``) of ``opt``."""
     bad = []
     v = opt["tropo_threshold_km"]
     if v is not None and not (_as_float(v) is not None and math.isfinite(_as_float(v)) and _as_float(v) >= 0):
@@ -57,6 +59,9 @@ def _wet_option_errors(opt: dict) -> list:
     v = _as_float(opt["tropo_sigma_m"])
     if not (v is not None and math.isfinite(v) and v > 0):
         bad.append(f"tropo_sigma_m: expected a σ in m > 0, got {opt['tropo_sigma_m']!r}")
+    for key in ("antex", "base_antenna", "rover_antenna"):
+        if opt[key] is not None and not (isinstance(opt[key], (str, Path)) and str(opt[key]).strip()):
+            bad.append(f"{key}: expected a {'file' if key == 'antex' else 'antenna type'} name, got {opt[key]!r}")
     return bad
 
 
@@ -80,7 +85,7 @@ def validate_options(options: dict) -> dict:
         bad.append(f"pos_frame: expected one of {', '.join(repr(f) for f in POS_FRAMES)}, got {opt['pos_frame']!r}")
     if not (np.isfinite(float(opt["iono_threshold_km"])) and float(opt["iono_threshold_km"]) >= 0):
         bad.append(f"iono_threshold_km: expected a baseline length in km >= 0, got {opt['iono_threshold_km']}")
-    bad += _wet_option_errors(opt)
+    bad += _model_option_errors(opt)
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
@@ -197,7 +202,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         _check_base_header(bx, b, nav, base_path)
     warnings += rover_delta_note(hr, f"{rover_path} (rover)")
     rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
-    gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths) for df, xyz, path, who in
+    ant = _antenna_models(opt, {"base": hb, "rover": hr}, {"base": base_path, "rover": rover_path}, warnings)
+    gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths, ant[who]) for df, xyz, path, who in
               ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
     warnings += _geometry_warnings({"base": (base_path, gb), "rover": (rover_path, gr)})
     gb.attrs, gr.attrs = {}, {}
@@ -206,10 +212,10 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                                     {"base": nominal_interval_s(gb["time_gps_s"].to_numpy()),
                                      "rover": nominal_interval_s(gr["time_gps_s"].to_numpy())})
     try:
-        rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp), nav=(nav, nav_paths),
-                              warnings=warnings)
-        res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=(r, rover_path, rx_from_spp),
-                                                       nav=(nav, nav_paths), code_noise=code_noise, warnings=warnings)
+        rover = (r, rover_path, rx_from_spp, ant["rover"])
+        rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths), warnings=warnings)
+        res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths),
+                                                       code_noise=code_noise, warnings=warnings)
     except CdgpsError as exc:
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
@@ -226,7 +232,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     warnings += code_steps_warning(cs["step_m"], cs["signal"], cs["time_gps_s"])
     text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
-    return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "warnings": warnings}
+    antennas = {"antex": None if opt["antex"] is None else str(opt["antex"]),
+                **{who: (None if m is None else " ".join(m.name.split())) for who, m in ant.items()}}
+    return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "antennas": antennas, "warnings": warnings}
 
 
 def _run_nav(nav_paths: list, systems: list, base_files: list, rover_files: list, paths: tuple) -> tuple:
@@ -398,7 +406,8 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     suffix = Path(str(out_path)).suffix.lower()
     desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
             f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}"
-            + (", zenith wet delays estimated" if res["wet_troposphere"]["model"] == "estimated" else ""))
+            + (", zenith wet delays estimated" if res["wet_troposphere"]["model"] == "estimated" else "")
+            + (f", receiver antenna models from {opt['antex']}" if opt.get("antex") else ""))
     if suffix == ".pos":
         bl, bo, bh = ecef_to_geodetic(np.asarray(base_xyz, float))
         ref = (" ".join(f"{v:.4f}" for v in np.asarray(base_xyz, float)) if opt["pos_frame"] == "xyz"   # as RTKLIB's
@@ -503,10 +512,11 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
     """:func:`solve_rtk`, solved again when its fixed epochs show the rover's troposphere was computed where the
     rover is not (a height or the fixed median more than :data:`ROVER_ORIGIN_TOL_M` from the origin ``rx``): the
     origin moved to the fixed median when that is far (a warning says so), the delay at each fixed epoch's
-    position.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
+    position.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position, antenna model or
+    None), ``nav`` (table,
     paths), ``code_noise`` the observations' :func:`receivers_code_noise`.  Returns (solution, the rover's geometry
     table, whether it was solved again)."""
-    r, rover_path, rx_from_spp = rover
+    r, rover_path, rx_from_spp, antenna = rover
     res = solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise)
     xyz_ep = _troposphere_positions(res, rx)
     moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
@@ -516,7 +526,7 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
     if far:
         warnings.append(_origin_moved_note(rover_path, rx, moved, rx_from_spp))
         rx = rx + moved
-        gr = _geometry(r, nav[0], rx, rover_path, "rover", nav[1])
+        gr = _geometry(r, nav[0], rx, rover_path, "rover", nav[1], antenna)
         gr.attrs = {}
     gr = troposphere_at_epochs(gr, res["time_gps_s"], xyz_ep)
     return solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise), gr, True
@@ -526,9 +536,9 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
     """The rover's origin moved to where it is (:func:`_static_float_offset`: its static float solution, or a moving
     rover's code mean) when that is more than :data:`ROVER_ORIGIN_TOL_M` away, with its geometry recomputed there: a single-point origin is metres off, and so
     may a header's be (u-blox converters), and the rover's troposphere (≈ 0.3 mm per metre of height) is computed at
-    the origin.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position), ``nav`` (table,
-    paths).  Returns (origin, geometry)."""
-    r, rover_path, from_spp = rover
+    the origin.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position, antenna model or
+    None), ``nav`` (table, paths).  Returns (origin, geometry)."""
+    r, rover_path, from_spp, antenna = rover
     moved, to, apart_m = _static_float_offset(gb, gr, bx, rx, opt)
     if opt["mode"] == "static" and apart_m is not None:     # as init's static fit (baseline._check_static_fit)
         raise CdgpsError(f"{rover_path} (rover): the rover moves (its static float solution is {apart_m:.0f} m from the "
@@ -541,7 +551,7 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
         return rx, gr
     if not from_spp:                      # (a single-point origin's own warning already says it is refined)
         warnings.append(_origin_moved_note(rover_path, rx, moved, False, to))
-    gr = _geometry(r, nav[0], rx + moved, rover_path, "rover", nav[1])
+    gr = _geometry(r, nav[0], rx + moved, rover_path, "rover", nav[1], antenna)
     gr.attrs = {}
     return rx + moved, gr
 
@@ -559,7 +569,11 @@ def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
     try:
         off, cov, code_only = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
                                                                    "fix": False, "fix_and_hold": False,
-                                                                   "code_noise": "model"})
+                                                                   "code_noise": "model",
+                                                                   # (a metre-level placement: no wet delays; the
+                                                                   # tables' antenna models are taken out already)
+                                                                   "tropo_threshold_km": None, "antex": None,
+                                                                   "base_antenna": None, "rover_antenna": None})
         if not (np.all(np.isfinite(off)) and np.all(np.isfinite(cov))):
             return np.zeros(3), "", None
         if np.linalg.norm(off) <= ROVER_ORIGIN_TOL_M:
@@ -644,10 +658,12 @@ def _origin_moved_note(path, rx, moved, from_spp: bool, to: str = "") -> str:
             f"troposphere at each epoch's position (about 1 mm of height per metre of height error otherwise)")
 
 
-def _geometry(df, nav, xyz, path, who, nav_paths):
-    """receiver_geometry with the file names and spans in its errors."""
+def _geometry(df, nav, xyz, path, who, nav_paths, antenna=None):
+    """receiver_geometry with the file names and spans in its errors; with ``antenna`` (an
+    :class:`~cdgps_cli.io.antex.AntennaModel`) its phase-centre model taken out of the phases and codes
+    (:func:`with_antenna_model`)."""
     try:
-        return receiver_geometry(df, nav, xyz)
+        g = receiver_geometry(df, nav, xyz)
     except CdgpsError as exc:
         t = df["time_gps_s"].to_numpy()
         toe = nav["toe_gps_s"].to_numpy() if "toe_gps_s" in nav.columns and len(nav) else np.zeros(0)
@@ -656,6 +672,55 @@ def _geometry(df, nav, xyz, path, who, nav_paths):
                else "no ephemerides")
         raise CdgpsError(f"{path} ({who}) and {', '.join(map(str, nav_paths))}: {exc}; {span}, {eph} (give the "
                          f"navigation file(s) of the observations' day)") from None
+    if antenna is None:
+        return g
+    try:
+        return with_antenna_model(g, antenna, xyz)
+    except CdgpsError as exc:
+        raise CdgpsError(f"{path} ({who}): {exc}") from None
+
+
+def with_antenna_model(g: pd.DataFrame, antenna, xyz) -> pd.DataFrame:
+    """A receiver's geometry table (:func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry`) with its antenna's
+    range correction d (:func:`~cdgps_cli.io.antex.antenna_range_m`, at each satellite's azimuth and elevation from
+    ``xyz``) taken out of every phase (d / λ cycles) and pseudorange (d m): the observations of the antenna reference
+    point, which the positions are.  The attrs are kept."""
+    az, el = azimuth_elevation(np.asarray(xyz, float), g[["sx", "sy", "sz"]].to_numpy(dtype=float))
+    d = antenna_range_m(antenna, g["signal"].to_numpy(), az, el)
+    out = g.assign(phase_cycles=g["phase_cycles"].to_numpy(dtype=float) - d / g["wavelength_m"].to_numpy(dtype=float),
+                   pseudorange_m=g["pseudorange_m"].to_numpy(dtype=float) - d)
+    out.attrs = dict(g.attrs)
+    return out
+
+
+def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> dict:
+    """{"base": model, "rover": model} of option ``antex`` (None each without it): each receiver's antenna is its
+    option's (``base_antenna`` / ``rover_antenna``; "none": no model) or its RINEX header's ``ANT # / TYPE``.
+    CdgpsError when an antenna is not named anywhere or the file has no calibration of it."""
+    if opt["antex"] is None:
+        for who in ("base", "rover"):
+            if opt[f"{who}_antenna"] is not None:
+                raise CdgpsError(f"{who}_antenna (--{who}-antenna) {opt[f'{who}_antenna']!r}: no --antex file to take "
+                                 f"its calibration from")
+        return {"base": None, "rover": None}
+    models = read_antex(opt["antex"])
+    out = {}
+    for who in ("base", "rover"):
+        name = opt[f"{who}_antenna"] or (headers[who].get("antenna_type") or "")
+        if name.strip().lower() == "none":
+            out[who] = None
+            continue
+        if not name.strip():
+            raise CdgpsError(f"{paths[who]} ({who}): its header names no antenna (ANT # / TYPE); give --{who}-antenna "
+                             f"TYPE (or none) for --antex {opt['antex']}")
+        model, note = find_antenna(models, name)
+        if model is None:
+            raise CdgpsError(f"{opt['antex']}: no calibration of {paths[who]}'s ({who}) antenna {name.strip()!r}; give "
+                             f"--{who}-antenna with a type the file has, or none")
+        if note:
+            warnings.append(f"{paths[who]} ({who}): {note}")
+        out[who] = model
+    return out
 
 
 def is_ubx_log(path) -> bool:

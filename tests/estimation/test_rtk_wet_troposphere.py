@@ -116,6 +116,8 @@ def test_bad_wet_options_are_named_and_the_static_engine_refuses_them():
     validate_options({"tropo_threshold_km": None})
     with pytest.raises(CdgpsError, match="does not estimate zenith wet delays"):
         _static_options({"tropo_threshold_km": 20.0})
+    with pytest.raises(CdgpsError, match="option antex = 'x.atx' is not supported"):
+        _static_options({"antex": "x.atx"})
 
 
 def test_rtk_takes_the_threshold_and_follows_the_ionosphere_s_by_default(tmp_path):
