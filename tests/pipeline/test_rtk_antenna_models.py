@@ -103,6 +103,12 @@ def test_rtk_takes_the_antennas_from_the_headers_or_as_named(tmp_path):
                 "SEPCHOKE_B3E6 SPKE")
     assert r.exit_code == 0, r.output
     assert json.loads(r.output[r.output.index("{"):])["antennas"]["rover"] is None
+    # without a file: a warning that the two antennas differ
+    r = run_cli(*args, "-o", tmp_path / "c.csv")
+    assert r.exit_code == 0, r.output
+    warn = json.loads(r.output[r.output.index("{"):])["warnings"]
+    assert any(w.startswith("the antennas differ") and "TRM29659.00 UNAV" in w and "SEPCHOKE_B3E6 SPKE" in w
+               and "--antex" in w for w in warn), warn
     # an antenna the file has not, an antenna named without a file, a file that is no ANTEX: exit 2, nothing written
     only = _antex_for_delf_zegv(tmp_path, {"TRM29659.00     NONE": 92.0})
     for extra, words in ((("--antex", only), ("no calibration of", "SEPCHOKE_B3E6 SPKE", "--rover-antenna")),
