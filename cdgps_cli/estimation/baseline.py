@@ -76,7 +76,7 @@ from cdgps_cli.model.gps.positioning import (
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.measurement.dd_signals import glonass_code_factor
 from cdgps_cli.measurement.epoch_fit import full_rank
-from cdgps_cli.measurement.epoch_pairing import age_variance_m2, nearest_tags, pair_epochs, rows_for_pairs
+from cdgps_cli.measurement.epoch_pairing import age_variance_m2, nearest_tags, pair_epochs, rows_for_pairs, NO_DD, without_dd
 from cdgps_cli.measurement.noise import correlated_variance_factor
 from cdgps_cli.model.gps.epoch_align import ALIGN_MODES, align_receiver, carry_slips
 
@@ -597,6 +597,9 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         raise CdgpsError(f"no double differences: fewer than two satellites of {_where(master)} and {_where(rover)} "
                          f"in common above the {opt.mask_deg:g}° mask at every common epoch ({n_ep} epochs, {_span(t_label)})")
     sel = np.flatnonzero(keep)
+    n_no_dd = n_ep - int(np.unique(ep[sel]).size)
+    if n_no_dd:
+        warnings.append(f"{rover.name}: {n_no_dd} of {n_ep} paired epochs not used: {NO_DD}")
     age_ep = tag_r - tag_m                                   # rover − base time of each epoch, s
     simultaneous = np.abs(age_ep) <= opt.sync_tol_s
     age_var_ep = age_variance_m2(np.nan_to_num(age_ep), opt.sync_tol_s, _age_sigma(opt))
@@ -609,7 +612,9 @@ def _prepare(master: Station, rover: Station, nav: pd.DataFrame, opt: BaselineOp
         "first_epoch": gps_time_str(float(t_label[0])),
         "last_epoch": gps_time_str(float(t_label[-1])),
         "max_tag_difference_ms": float(np.nanmax(np.where(simultaneous, np.abs(tag_m - tag_r), 0.0)) * 1e3),
-        "epoch_pairing": ce.pairing,
+        # the paired epochs that hold no double difference (no phase at both, fewer than two satellites above the
+        # mask) are not used either: counted with their reason, as rtk counts them
+        "epoch_pairing": without_dd(ce.pairing, n_no_dd),
         "epoch_alignment": ce.align_info,
         "rx_clock_ms": {
             master.name: [float(np.min(clk_m) * 1e3), float(np.max(clk_m) * 1e3)],

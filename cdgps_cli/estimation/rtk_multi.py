@@ -43,7 +43,7 @@ from cdgps_cli.estimation.kalman import NUMPY_INVERSE, StepFilter
 from cdgps_cli.measurement.code_steps import without_code_steps
 from cdgps_cli.measurement.dd_signals import DDGroupModel, backward_slips, channel_index, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import sd_variance
-from cdgps_cli.measurement.epoch_pairing import pair_epochs
+from cdgps_cli.measurement.epoch_pairing import pair_epochs, without_dd
 from cdgps_cli.measurement.base_interpolation import base_age_noise  # noqa: F401 (rtk_multi.base_age_noise: API)
 from cdgps_cli.measurement.noise import code_noise_factor, effective_sample_size
 from cdgps_cli.measurement.slips import geometry_free_slips, slip_events
@@ -626,7 +626,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
     direction = "forward" if opt["mode"] == "static" else opt["direction"]
     res = _epochs_with_dd(_passes(rows, times, direction, opt, base_xyz, origin, iono, progress))
-    times, age_s, summary = times[res["with_dd"]], pairs.age_s[res["with_dd"]], _pairing_with_dd(pairs.summary, res)
+    times, age_s, summary = times[res["with_dd"]], pairs.age_s[res["with_dd"]], without_dd(pairs.summary, res["without_dd"])
     ok = res["fixed"]
     last = res["fixed_xyz"][-1] if ok[-1] else res["float_xyz"][-1]
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
@@ -672,12 +672,6 @@ def _wet_summary(res: dict, opt) -> dict:
             "sigma_m": opt["tropo_sigma_m"], "rw_m_per_sqrt_s": opt["tropo_rw_m_per_sqrt_s"], **last}
 
 
-#: why a paired rover epoch has no solution: the filter only predicted through it (its position would be the
-#: neighbours' interpolated, labelled float; RTKLIB writes no line for such an epoch either)
-NO_DD = ("without a double difference (fewer than two satellites of one signal with a carrier phase at both "
-         "receivers above the mask)")
-
-
 def _epochs_with_dd(res: dict) -> dict:
     """The passes' per-epoch results (:func:`_passes`) at the epochs that held a double difference (``ns`` > 0),
     their mask as ``with_dd`` (n,) bool, and the count of the others as ``without_dd``."""
@@ -685,15 +679,6 @@ def _epochs_with_dd(res: dict) -> dict:
     n = keep.size
     out = {k: (v[keep] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n else v) for k, v in res.items()}
     return dict(out, with_dd=keep, without_dd=int(n - keep.sum()))
-
-
-def _pairing_with_dd(summary: dict, res: dict) -> dict:
-    """The epoch pairing's summary with the paired epochs that held no double difference (:data:`NO_DD`) taken
-    from ``used`` into ``dropped``."""
-    k = res["without_dd"]
-    if not k:
-        return summary
-    return {**summary, "used": summary["used"] - k, "dropped": {**summary["dropped"], NO_DD: k}}
 
 
 def _velocities(res: dict, ok) -> dict:

@@ -165,8 +165,9 @@ def _unsigned_zero(value, decimals: int) -> float:
     return 0.0 if round(v, decimals) == 0 else v
 
 
-#: the longest NMEA 0183 sentence, ``$`` to the checksum included (82 with the CR LF the standard counts: 80)
-NMEA_MAX_CHARS = 82
+#: the longest NMEA 0183 sentence, ``$`` to the checksum included: the standard's 82 characters count the CR LF
+#: (a real M8P run wrote 463 of 1201 GGA sentences of 81, which casters and receivers that hold to it refuse)
+NMEA_MAX_CHARS = 80
 #: decimals of the minutes of latitude and longitude in GGA (RTKLIB's: 1e-7 min ≈ 0.2 mm)
 GGA_MINUTE_DECIMALS = 7
 
@@ -189,8 +190,10 @@ def _nmea(body: str) -> str:
 
 def _gga(utc, lat_deg, lon_deg, q, ns, height_m, age_s) -> str:
     """One GGA sentence of at most :data:`NMEA_MAX_CHARS`: minutes with :data:`GGA_MINUTE_DECIMALS`
-    decimals, fewer only where a long height or age would not fit otherwise."""
-    age = _unsigned_zero(age_s, 1)
+    decimals, fewer where the height, the age and the longitude's degrees would not fit otherwise (6: 1.8 mm).
+    The age of the differential data is the time between the rover epoch and its base epoch, whichever came
+    first (NMEA's field is a time since, never negative; RTKLIB's combined mode writes the sign)."""
+    age = _unsigned_zero(abs(float(age_s)), 1)
     for decimals in range(GGA_MINUTE_DECIMALS, 2, -1):
         lat, north = _dm(lat_deg, 2, decimals)
         lon, east = _dm(lon_deg, 3, decimals)
@@ -203,9 +206,9 @@ def _gga(utc, lat_deg, lon_deg, q, ns, height_m, age_s) -> str:
 
 def nmea_gga_text(time_gps_s, lat_deg, lon_deg, height_m, q, ns, age_s) -> str:
     """NMEA GGA sentences (UTC = GPS − leap seconds; quality 4 RTK fixed, 5 float, 1 single), each at
-    most :data:`NMEA_MAX_CHARS` characters: minutes of latitude and longitude with 7 decimals (as
-    RTKLIB), the height (ellipsoidal, geoid separation 0.0) in mm, HDOP empty (not computed), the
-    differential age in 0.1 s and station 0000."""
+    most :data:`NMEA_MAX_CHARS` characters and CR LF: minutes of latitude and longitude with 7 decimals (as
+    RTKLIB) where they fit, else 6, the height (ellipsoidal, geoid separation 0.0) in mm, HDOP empty (not
+    computed), the differential age in 0.1 s (its magnitude) and station 0000."""
     gga_q = {Q_FIX: 4, Q_FLOAT: 5, Q_SINGLE: 1}
     out = []
     for k in range(len(time_gps_s)):

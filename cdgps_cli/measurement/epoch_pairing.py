@@ -40,11 +40,26 @@ import pandas as pd
 from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS
 
 __all__ = ["EpochPairs", "pair_epochs", "age_variance_m2", "carry_base_slips", "rows_for_pairs", "DROP_REASONS",
-           "channel_index"]
+           "channel_index", "NO_DD", "without_dd"]
 
 #: why a rover epoch is not used, in the order the summary lists them
 DROP_REASONS = ("duplicate rover epoch", "before the first base epoch", "after the last base epoch",
                 "in a base gap (no base epoch within the maximum age)")
+
+
+#: why a paired rover epoch has no solution: the filter only predicted through it (its position would be the
+#: neighbours' interpolated, labelled float; RTKLIB writes no line for such an epoch either), and a batch has no row
+#: of it (every GNSS command counts it so: rtk, baseline, init)
+NO_DD = ("without a double difference (fewer than two satellites of one signal with a carrier phase at both "
+         "receivers above the mask)")
+
+
+def without_dd(summary: dict, n: int) -> dict:
+    """A pairing summary (:func:`pair_epochs`) with ``n`` of its used epochs that held no double difference moved
+    from ``used`` into ``dropped`` under :data:`NO_DD` (the same summary when ``n`` is 0)."""
+    if n <= 0:
+        return summary
+    return {**summary, "used": summary["used"] - n, "dropped": {**summary["dropped"], NO_DD: n}}
 
 
 class EpochPairs(NamedTuple):

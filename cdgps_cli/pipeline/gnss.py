@@ -607,8 +607,15 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
                              events, smooth and model != "static", meta_extra)
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names,
                 "warnings": _blind_warnings(summary_rovers, model) + _misfit_warnings(out.get("mean_nis_per_dof"),
-                                                                                      model)})
+                                                                                      model)
+                + ([STATIC_SMOOTH_NOTE] if smooth and model == "static" else [])})
     return out
+
+
+#: ``estimate --smooth`` on the static displacement model: nothing to smooth, said rather than ignored
+STATIC_SMOOTH_NOTE = ("--smooth has no effect with [gnss.displacement] model = \"static\": its states are the static "
+                      "solution at every epoch (STATES metadata smoothed = false); a random_walk or constant_velocity "
+                      "model is smoothed")
 
 
 #: ``estimate`` warns when more than this share of a moving rover's epochs have no double difference of fixed

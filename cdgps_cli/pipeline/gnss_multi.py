@@ -212,7 +212,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                                     {"base": nominal_interval_s(gb["time_gps_s"].to_numpy()),
                                      "rover": nominal_interval_s(gr["time_gps_s"].to_numpy())})
     try:
-        rover = (r, rover_path, rx_from_spp, ant["rover"])
+        rover = (r, rover_path, rx_from_spp, ant["rover"], hr.get("position_source"))
         rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths), warnings=warnings)
         res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths),
                                                        code_noise=code_noise, warnings=warnings)
@@ -513,10 +513,9 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
     rover is not (a height or the fixed median more than :data:`ROVER_ORIGIN_TOL_M` from the origin ``rx``): the
     origin moved to the fixed median when that is far (a warning says so), the delay at each fixed epoch's
     position.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position, antenna model or
-    None), ``nav`` (table,
-    paths), ``code_noise`` the observations' :func:`receivers_code_noise`.  Returns (solution, the rover's geometry
+    None, what gave the file's position: None for a RINEX header), ``nav`` (table, paths), ``code_noise`` the observations' :func:`receivers_code_noise`.  Returns (solution, the rover's geometry
     table, whether it was solved again)."""
-    r, rover_path, rx_from_spp, antenna = rover
+    r, rover_path, rx_from_spp, antenna, source = rover
     res = solve_rtk(gb, gr, bx, rx, options=opt, code_noise=code_noise)
     xyz_ep = _troposphere_positions(res, rx)
     moved = np.nanmedian(xyz_ep, axis=0) - rx if np.isfinite(xyz_ep).any() else np.zeros(3)
@@ -524,7 +523,7 @@ def _solve_where_the_rover_is(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: t
     if not (far or _heights_differ(xyz_ep, rx)):
         return res, gr, False
     if far:
-        warnings.append(_origin_moved_note(rover_path, rx, moved, rx_from_spp))
+        warnings.append(_origin_moved_note(rover_path, rx, moved, rx_from_spp, header_source=source))
         rx = rx + moved
         gr = _geometry(r, nav[0], rx, rover_path, "rover", nav[1], antenna)
         gr.attrs = {}
@@ -537,8 +536,8 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
     rover's code mean) when that is more than :data:`ROVER_ORIGIN_TOL_M` away, with its geometry recomputed there: a single-point origin is metres off, and so
     may a header's be (u-blox converters), and the rover's troposphere (≈ 0.3 mm per metre of height) is computed at
     the origin.  ``rover`` is (observation table, path, whether ``rx`` is a single-point position, antenna model or
-    None), ``nav`` (table, paths).  Returns (origin, geometry)."""
-    r, rover_path, from_spp, antenna = rover
+    None, what gave the file's position: None for a RINEX header), ``nav`` (table, paths).  Returns (origin, geometry)."""
+    r, rover_path, from_spp, antenna, source = rover
     moved, to, apart_m = _static_float_offset(gb, gr, bx, rx, opt)
     if opt["mode"] == "static" and apart_m is not None:     # as init's static fit (baseline._check_static_fit)
         raise CdgpsError(f"{rover_path} (rover): the rover moves (its static float solution is {apart_m:.0f} m from the "
@@ -550,7 +549,7 @@ def _place_rover(gb, gr, bx, rx, opt: dict, *, rover: tuple, nav: tuple, warning
     if np.linalg.norm(moved) <= ROVER_ORIGIN_TOL_M:
         return rx, gr
     if not from_spp:                      # (a single-point origin's own warning already says it is refined)
-        warnings.append(_origin_moved_note(rover_path, rx, moved, False, to))
+        warnings.append(_origin_moved_note(rover_path, rx, moved, False, to, header_source=source))
     gr = _geometry(r, nav[0], rx + moved, rover_path, "rover", nav[1], antenna)
     gr.attrs = {}
     return rx + moved, gr
@@ -643,12 +642,13 @@ def _heights_differ(xyz_m: np.ndarray, origin_m: np.ndarray) -> bool:
     return bool(np.any(np.abs(h[np.isfinite(h)] - ecef_to_geodetic(origin_m)[2]) > ROVER_ORIGIN_TOL_M))
 
 
-def _origin_moved_note(path, rx, moved, from_spp: bool, to: str = "") -> str:
+def _origin_moved_note(path, rx, moved, from_spp: bool, to: str = "", header_source: str | None = None) -> str:
     """The warning that the rover's a-priori position was moved to its solution (up = height change, m); ``to``
-    names where it was moved before solving (default: solved again from the solution's median position)."""
+    names where it was moved before solving (default: solved again from the solution's median position);
+    ``header_source`` what gave the file's own position (None: a RINEX header's APPROX POSITION XYZ)."""
     lat, lon, _ = ecef_to_geodetic(rx)
     up = float(enu_matrix(lat, lon)[2] @ moved)
-    source = "single-point position" if from_spp else "APPROX POSITION XYZ"
+    source = "single-point position" if from_spp else (header_source or "APPROX POSITION XYZ")
     if to:
         return (f"{path} (rover): its {source} is {np.linalg.norm(moved):.1f} m (height {up:+.1f} m) from {to}, "
                 f"more than {ROVER_ORIGIN_TOL_M:g} m: the rover's a-priori position (its troposphere, about 1 mm of "
@@ -832,7 +832,7 @@ def _ubx_receiver(name, decoded: tuple, sigs, who: str, warnings: list) -> tuple
     if problems:
         warnings.append(f"{name} ({who}): skipped: {'; '.join(problems)}")
     base = info.get("rtcm_base")
-    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None,
+    return ({"approx_position_xyz_m": base["arp_ecef_m"] if base else None, "position_source": "RTCM 1005/1006 position",
              "file_epochs": int(np.unique(tab["time_gps_s"].to_numpy()).size)},
             tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
 

@@ -652,3 +652,16 @@ def test_a_rover_without_some_epochs_has_states_at_every_epoch(rw_sim, tmp_path,
         assert (s2[mid] > s2[595]).all() and (s2[mid] > s2[665]).all()
         walk = 0.002 ** 2 * 30.0 * 0.5           # the bridge's variance at its middle: σ² τ (T − τ) / T, T = 60 s
         assert (s2[mid] ** 2 - s2[595] ** 2 > 0.5 * walk).all()
+
+
+def test_smoothing_a_static_model_is_said_to_do_nothing(static_sim, tmp_path):
+    """``estimate --smooth`` on [gnss.displacement] model = "static" (its states are the static solution at every
+    epoch) used to write smoothed = false without a word; it now says so, and the STATES are the unsmoothed ones."""
+    from cdgps_cli.pipeline.gnss import STATIC_SMOOTH_NOTE
+
+    tmp, _ = static_sim
+    out = tmp_path / "s.mcap"
+    r = run_cli("estimate", tmp / "run.mcap", "--init", tmp / "init.json", "--smooth", "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    assert STATIC_SMOOTH_NOTE in json.loads(r.stdout)["warnings"]
+    assert np.array_equal(States(out).q, States(tmp / "states.mcap").q)

@@ -70,7 +70,7 @@ def test_epochs_without_a_double_difference_are_not_written_and_are_counted(tmp_
     import numpy as np
     import pandas as pd
 
-    from cdgps_cli.estimation.rtk_multi import NO_DD
+    from cdgps_cli.measurement.epoch_pairing import NO_DD
 
     rover = tmp_path / "rover.obs"
     rover.write_text(_one_satellite_of((MOSAIC / "rover.obs").read_text(), "E", set(range(50, 60))))
@@ -85,3 +85,21 @@ def test_epochs_without_a_double_difference_are_not_written_and_are_counted(tmp_
     t0 = 1403252400.0                                    # the rover's first epoch; one line per second after it
     assert len(df) == 291 and (df["n_satellites"] >= 2).all()
     assert not set(np.round(df["time_gps_s"] - t0).astype(int)) & set(range(50, 60))
+
+
+def test_baseline_and_init_count_the_epochs_without_a_double_difference_as_rtk_does(tmp_path):
+    """The same accounting in the static solution of ``baseline`` and ``init`` (``baseline._prepare``): the real M8P
+    pair's rover epoch with codes and no phase was used by the pairing (1202 of 1202) and by no double difference
+    (1201), without a word.  Here GPS L1 with one satellite left at the rover for ten epochs."""
+    from cdgps_cli.measurement.epoch_pairing import NO_DD
+
+    rover = tmp_path / "rover.obs"
+    rover.write_text(_one_satellite_of((MOSAIC / "rover.obs").read_text(), "G", set(range(50, 60))))
+    out = tmp_path / "b.json"
+    r = run_cli("baseline", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={rover}", "--nav",
+                MOSAIC / "base.nav", "--master", "base", "-o", out)
+    assert r.exit_code == 0, r.output
+    e = json.loads(out.read_text())["epochs"]
+    assert e["n_epochs_common"] == 301 and e["n_epochs_used"] == 291
+    assert e["epoch_pairing"]["used"] == 291 and e["epoch_pairing"]["dropped"] == {NO_DD: 10}
+    assert f"rover: 10 of 301 paired epochs not used: {NO_DD}" in " ".join(r.output.split())
