@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import math
 
 import numpy as np
 import pandas as pd
@@ -322,27 +321,37 @@ def _ubx_lli(r: pd.DataFrame, t: np.ndarray, interval_s: float | None) -> np.nda
 def lock_summary(rx: GnssReceiver, obs: pd.DataFrame | None = None) -> dict:
     """Lock counters of a receiver per satellite: phase rows, slips (LLI bit 0 after the first row:
     RINEX flags or u-blox lock-time restarts), half-cycle-flagged rows, and arcs — the lock segments
-    of :func:`cdgps_cli.measurement.channels.lock_segments` (slip flags, gaps over 1.5 epoch
-    intervals), the same rule as the double differences' ambiguities."""
+    of :func:`cdgps_cli.measurement.channels.lock_segments` over the receiver's own epochs: a slip flag, or an
+    epoch the receiver logged without this satellite; an epoch it did not log at all (a base logging with gaps)
+    cuts nothing.  That is the double differences' rule (``differencing.ambiguity_segments``' own outages); until
+    session 29 every gap over 1.5 intervals cut an arc here (a real u-blox M8P base: 1432 arcs, G01 112 without
+    a slip)."""
     o = processing_obs(rx) if obs is None else obs
     ph = np.isfinite(o["phase_l1_cycles"].to_numpy())
     t = o["time_gps_s"].to_numpy()[ph]
     lli = o["lli_l1"].to_numpy()[ph]
     codes, sats = pd.factorize(o["sat"][ph], sort=True)      # (a categorical column: its codes, no strings made)
     codes = codes.astype(np.int32)
-    interval = nominal_interval_s(t)
-    max_step = 1.5 * interval if math.isfinite(interval) else np.inf
+    epoch = _epoch_index(t)                                  # the receiver's own epochs: a step of 1 within an arc
+    max_step = 1.0
     n = len(sats)
     rows = np.bincount(codes, minlength=n)
     slips, half, arcs = np.zeros(n), np.bincount(codes, weights=((lli & 2) != 0).astype(float), minlength=n), np.zeros(n)
     for a, b in _channel_groups(rows):       # satellites in groups: a day's rows are not all cut at once
         g = (codes >= a) & (codes < b) if (a, b) != (0, n) else slice(None)
         c, lg = codes[g], lli[g]
-        seg = lock_segments(c, t[g], slip=(lg & 1) != 0, max_step=max_step)
+        seg = lock_segments(c, epoch[g], slip=(lg & 1) != 0, max_step=max_step)
         slips += np.bincount(c, weights=(((lg & 1) != 0) & (seg.cause != FIRST)).astype(float), minlength=n)
         arcs += np.bincount(seg.channel, minlength=n)
     return {str(s): {"rows": int(rows[i]), "slips": int(slips[i]), "half_cycle_rows": int(half[i]), "arcs": int(arcs[i])}
             for i, s in enumerate(sats)}
+
+
+def _epoch_index(t: np.ndarray) -> np.ndarray:
+    """Each row's index among the distinct times ``t`` holds (rows in time order: one pass; else sorted)."""
+    if t.size and bool(np.all(t[1:] >= t[:-1])):
+        return np.searchsorted(distinct_times(t), t).astype(np.int64)
+    return np.unique(t, return_inverse=True)[1].astype(np.int64)
 
 
 _LOCK_ROWS_PER_PASS = 500_000
