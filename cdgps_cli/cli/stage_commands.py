@@ -226,7 +226,7 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
               f"{s['ephemerides']} ephemerides, {cfg.displacement} displacement model")
     for r in s["receivers"]:
         _say(ctx, f"  {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
-                  f"({'one epoch' if r['interval_s'] is None else format(r['interval_s'], 'g') + ' s'}), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}, "
+                  f"({'one epoch' if r['interval_s'] is None else 'sampled at ' + format(r['interval_s'], 'g') + ' s'}), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}, "
                   f"{r['slips']} slips, {r['half_cycle_rows']} half-cycle rows")
     for n, c in s["common_epochs"].items():
         _say(ctx, f"  {n}: {c['common_epochs']} epochs in common with {s['master']}" + _grid_note(c))
@@ -922,7 +922,7 @@ def _gnss_info_lines(g: dict) -> list:
     out = [f"  GNSS run: config {c['name']} (sha256 {c['config_sha256'][:12]}…), master {g['master']}, rovers "
            f"{', '.join(g['rovers']) or 'none'}, displacement {c['displacement']}; coordinates {', '.join(g['coordinates']) or '-'}"]
     for r in g["receivers"]:
-        every = "one epoch" if r["interval_s"] is None else f"{r['interval_s']:g} s"      # (None: one epoch, no interval)
+        every = "one epoch" if r["interval_s"] is None else f"sampled at {r['interval_s']:g} s"   # (None: one epoch)
         out.append(f"    {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
                    f"({every}), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}; "
                    f"lock: {r['arcs']} arcs, {r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: "

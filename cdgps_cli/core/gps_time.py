@@ -141,3 +141,38 @@ def glonasst_to_gps_s(t_glonasst_s, gps_minus_utc_s):
     (:func:`cdgps_cli.core.timescales.gps_minus_utc_s`; 18 s since 2017).
     """
     return np.asarray(t_glonasst_s, dtype=np.float64) - GLONASST_MINUS_UTC_S + np.asarray(gps_minus_utc_s, dtype=np.float64)
+
+
+def grid_step_s(interval_s: float) -> float:
+    """The grid of a receiver with this nominal interval, s: ``1/n`` s for ``n`` Hz, ``n`` s for
+    one epoch every ``n`` s (each within 5 %: the median spacing of epochs with jitter or gaps),
+    else the interval to 1 ms; 1 s if it is unknown (a single epoch)."""
+    if not (math.isfinite(interval_s) and interval_s > 0):
+        return 1.0
+    rate = 1.0 / interval_s
+    if rate >= 0.95 and abs(rate - round(rate)) < 0.05 * rate:
+        return 1.0 / round(rate)
+    if interval_s >= 1.0 and abs(interval_s - round(interval_s)) < 0.05 * interval_s:
+        return float(round(interval_s))
+    return round(interval_s, 3)
+
+
+#: share of a receiver's epoch spacings that must be whole multiples of its sampling interval (sampling_interval_s)
+SAMPLING_MULTIPLES_SHARE = 0.9
+
+
+def sampling_interval_s(t_s) -> float:
+    """The interval a receiver samples at, s: the grid (:func:`grid_step_s`) of the 5th percentile of its epoch
+    spacings when at least :data:`SAMPLING_MULTIPLES_SHARE` of the spacings are whole multiples of it (within
+    5 %), else the median spacing (:func:`~cdgps_cli.core.gps_time.nominal_interval_s`).  A log with gaps (a
+    u-blox base interleaving RTCM: spacings of 1, 2, 3 … s, median 3 s) samples at 1 s; its median spacing
+    would put two epochs in three off the grid."""
+    u = np.unique(np.asarray(t_s, dtype=np.float64))
+    if u.size < 3:
+        return nominal_interval_s(u)
+    d = np.diff(u)
+    step = grid_step_s(float(np.percentile(d, 5)))
+    k = d / step
+    if np.mean(np.abs(k - np.round(k)) <= 0.05) >= SAMPLING_MULTIPLES_SHARE:
+        return step
+    return nominal_interval_s(u)

@@ -58,7 +58,7 @@ from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
-from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s
+from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s, sampling_interval_s
 
 __all__ = [
     "GNSS_OBS_TOPIC", "GNSS_EPHEMERIS_TOPIC", "RAW_COLUMNS", "GnssReceiver", "GnssRun", "is_gnss_run",
@@ -959,7 +959,8 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
     return {"name": n, "format": rx.format, "file": rx.file, "epochs": int(tu.size),
             "first": gps_time_str(float(tu[0])), "last": gps_time_str(float(tu[-1])),
             "first_gps_s": float(tu[0]), "last_gps_s": float(tu[-1]),
-            "interval_s": nominal_interval_s(tu), "satellites": int(tab["sat"].nunique()),
+            # the interval it samples at (a base logging with gaps: 1 s, not its median spacing of 3 s), as the solvers
+            "interval_s": sampling_interval_s(tu), "satellites": int(tab["sat"].nunique()),
             "rows": int(len(t)), "phase_rows": int(ph.sum()),
             "slips": int(sum(v["slips"] for v in lock.values())),
             "half_cycle_rows": int(sum(v["half_cycle_rows"] for v in lock.values())),
@@ -1387,7 +1388,7 @@ def _rinex_comments(n: str, p, comments: list) -> GnssReceiver:
         except CdgpsError:
             pass
     pos = header_position_m(h)
-    span = f"{t.size} epochs {span_text(t)} every {nominal_interval_s(t):g} s" if t.size else "epochs: see ingest"
+    span = f"{t.size} epochs {span_text(t)} sampled every {sampling_interval_s(t):g} s" if t.size else "epochs: see ingest"
     comments.append(f"{n}: {Path(p).name}, RINEX {float(h.get('version') or 0):.2f}, marker {h.get('marker_name') or '?'}, receiver "
                     f"{h.get('receiver_type') or '?'}, antenna {h.get('antenna_type') or '?'}, {span},")
     comments.append(f"    header position {('(' + ', '.join(f'{v:.4f}' for v in pos) + ')') if pos is not None else 'none'}")
