@@ -292,7 +292,7 @@ def _prepare_state(st, groups, opt, iono):
     st.keep(wanted)
     if wet and WET_KEYS[0] not in st.index:
         for key in WET_KEYS:                      # RTKLIB's start: 0.15 ± 0.3 m at each receiver
-            st.add(key, opt["tropo_initial_m"], opt["tropo_sigma_m"] ** 2)
+            st.add(key, float(opt["tropo_initial_m"]), float(opt["tropo_sigma_m"]) ** 2)
     wet_col = np.array([st.index[k] for k in WET_KEYS], dtype=np.int64) if wet else None
     for g, ks in zip(groups, keys):
         g["wet_col"] = wet_col
@@ -655,11 +655,14 @@ def wet_threshold_km(opt: dict) -> float:
 
 
 def _with_wet_mapping(rows: dict, base_xyz, rover_xyz) -> dict:
-    """``rows`` (:func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows` with ``el_rover``) with each row's Niell wet
-    mapping factor at the base (``mw_b``, at the base elevation ``el``) and at the rover (``mw_r``), each at its
-    receiver's latitude."""
+    """``rows`` (:func:`~cdgps_cli.measurement.dd_signals.paired_sd_rows` with ``el_rover`` and ``el_base_wet``) with
+    each row's Niell wet mapping factor at the base (``mw_b``, at the base's elevation at the instant its observation
+    stands for: an interpolated one's, the rover's time) and at the rover (``mw_r``), each at its receiver's
+    latitude."""
     lat_b, lat_r = (float(ecef_to_geodetic(np.asarray(p, float))[0]) for p in (base_xyz, rover_xyz))
-    return dict(rows, mw_b=niell_wet_mapping(rows["el"], lat_b), mw_r=niell_wet_mapping(rows.pop("el_rover"), lat_r))
+    rows = dict(rows)
+    return dict(rows, mw_b=niell_wet_mapping(rows.pop("el_base_wet"), lat_b),
+                mw_r=niell_wet_mapping(rows.pop("el_rover"), lat_r))
 
 
 def _wet_summary(res: dict, opt) -> dict:
@@ -851,7 +854,7 @@ class _RtkDynamics:
         self.motion = _motion_model(opt)
         self.identity = self.motion.identity_transition
         self.iono_q = opt["iono_rw_m_per_sqrt_s"] ** 2
-        self.wet_q = opt["tropo_rw_m_per_sqrt_s"] ** 2 if opt.get("wet_estimated", False) else 0.0
+        self.wet_q = float(opt["tropo_rw_m_per_sqrt_s"]) ** 2 if opt.get("wet_estimated", False) else 0.0
         self._by_dt = {}
 
     #: step lengths whose transition :meth:`_transition` keeps (a record's few distinct spacings: a 10 Hz

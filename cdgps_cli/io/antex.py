@@ -40,12 +40,14 @@ ANTEX_FREQUENCIES = {
 @dataclass(frozen=True)
 class AntennaModel:
     """One antenna type's calibration: ``offsets_neu_mm`` {frequency: (3,) north, east, up, mm}, ``variations_mm``
-    {frequency: (n,) on ``zenith_deg`` (n,)}; ``name`` as the file writes it (type and radome)."""
+    {frequency: (n,) on ``zenith_deg`` (n,)}; ``name`` as the file writes it (type and radome), ``source`` the
+    file."""
 
     name: str
     zenith_deg: np.ndarray
     offsets_neu_mm: dict
     variations_mm: dict
+    source: str = ""                   # the file it was read from
 
     def frequency(self, signal_name: str) -> str | None:
         """The frequency of this model that serves ``signal_name`` (:data:`ANTEX_FREQUENCIES`), or None."""
@@ -91,7 +93,7 @@ class _Entry:
         missing = sorted(set(self.off) - set(self.var))
         if missing:
             raise CdgpsError(f"{path}: antenna {self.name.strip()!r}: no NOAZI row for {', '.join(missing)}")
-        return AntennaModel(self.name, grid, dict(self.off), dict(self.var))
+        return AntennaModel(self.name, grid, dict(self.off), dict(self.var), str(path))
 
 
 def read_antex(path: str | Path) -> dict:
@@ -188,8 +190,8 @@ def antenna_range_m(model: AntennaModel, signals, az_rad, el_rad) -> np.ndarray:
     for name in np.unique(sig):
         f = model.frequency(str(name))
         if f is None:
-            raise CdgpsError(f"antenna {model.name.strip()}: no calibration for {name} (the file has "
-                             f"{', '.join(sorted(model.offsets_neu_mm))})")
+            raise CdgpsError(f"{model.source or 'the ANTEX file'}: antenna {' '.join(model.name.split())} has no "
+                             f"calibration for {name} (it has {', '.join(sorted(model.offsets_neu_mm))})")
         k = sig == name
         n_, e_, up = model.offsets_neu_mm[f]
         pco = np.array([e_, n_, up]) * 1e-3

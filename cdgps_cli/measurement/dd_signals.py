@@ -46,6 +46,7 @@ from cdgps_cli.measurement.differencing import ambiguity_segments, dd_covariance
 from cdgps_cli.measurement.base_interpolation import base_rows, interpolate_base
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, carry_base_slips, channel_index
 from cdgps_cli.measurement.noise import correlated_variance_factor
+from cdgps_cli.model.gps.orbits import azimuth_elevation
 
 __all__ = ["dd_range", "epoch_rows", "signal_sd_table", "group_key", "DDGroupModel", "GroupRows", "RunDDModel",
            "whitening_matrix", "paired_sd_rows", "epoch_groups", "backward_slips", "channel_index"]
@@ -530,7 +531,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     receiver's satellite clock and, when asked, troposphere removed), ``slip``, ``var_phase`` /
     ``var_code`` (m², the base age's share included); ``interpolated_epochs``: how many rover epochs took the
     base interpolated (in at least one signal group); with ``mask_rover`` and ``opt["rover_elevation"]`` true,
-    ``el_rover`` (N,) the rover's elevation of each row too (rad; for the wet troposphere's mapping).
+    ``el_rover`` (N,) the rover's elevation of each row too and ``el_base_wet`` (N,) the base's at the instant its
+    observation stands for (rad; for the wet troposphere's mapping: :func:`_base_elevation_of_rows`).
 
     With ``base_xyz_m`` (the base position, ECEF m), a bridged rover epoch that has base epochs on both sides within
     the maximum age takes the base's observations interpolated to its time
@@ -567,7 +569,7 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     keep_el_r = mask_rover and bool(opt.get("rover_elevation"))
     m = _kept_sorted(m, above, ["_ep", "signal", "_row_b", "_row_r"],
                      drop=tuple(c for c in _UNUSED_AFTER_SORT if not (keep_el_r and c == "_el_r")))
-    m, age, n_interpolated = _base_at_rover_times(m, b, tb, pairs, opt, base_xyz_m)
+    m, age, n_interpolated, interpolated = _base_at_rover_times(m, b, tb, pairs, opt, base_xyz_m)
     del b                                       # (the base's copy: its rows are in ``m`` now)
     names, code = _sorted_codes(m["signal"].to_numpy())
     epoch = m["_ep"].to_numpy()
@@ -580,7 +582,8 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
     slip_b = ((m["lli_b"].to_numpy() & 1) > 0) & first_use[epoch]
     half = ((m["lli_r"].to_numpy() | m["lli_b"].to_numpy()) & 2) > 0
     code = code.reshape(-1)
-    extra = {"el_rover": m["_el_r"].to_numpy(dtype=float)} if keep_el_r else {}
+    extra = ({"el_rover": m["_el_r"].to_numpy(dtype=float),
+              "el_base_wet": _base_elevation_of_rows(m, interpolated, base_xyz_m)} if keep_el_r else {})
     return {**extra,
         "groups": _group_layout(epoch, code, el, half, n_ep),
         "ptr": np.searchsorted(epoch, np.arange(n_ep + 1)), "names": names, "code": code,
@@ -600,6 +603,18 @@ def paired_sd_rows(base, rover, pairs, opt, *, mask_rover: bool = False, base_xy
                     * opt.get("code_variance_factor", 1.0)
                     * glonass_code_factor(m["sat"].to_numpy(), bool(opt.get("glonass_fix", False))) + var_age,
     }
+
+
+def _base_elevation_of_rows(m: pd.DataFrame, interpolated: np.ndarray, base_xyz_m) -> np.ndarray:
+    """The base's elevation of each paired row at the instant its base observation stands for (rad): its base
+    epoch's (``el_rad``), or for a row whose base observation was interpolated to the rover's time, the elevation at
+    that time (of the rover row's satellite position, seen from the base): the wet delay the interpolated
+    observation carries is the one of that instant."""
+    el = m["el_rad"].to_numpy(dtype=float).copy()
+    if base_xyz_m is not None and interpolated.any():
+        sat = m[["sx_r", "sy_r", "sz_r"]].to_numpy(dtype=float)[interpolated]
+        el[interpolated] = azimuth_elevation(np.asarray(base_xyz_m, float), sat)[1]
+    return el
 
 
 #: the merged rows' columns :func:`paired_sd_rows` reads no more once they are sorted (not copied with the rows kept)
@@ -659,15 +674,15 @@ def glonass_code_factor(sats, glonass_fix: bool) -> np.ndarray | float:
 
 def _base_at_rover_times(m: pd.DataFrame, b: pd.DataFrame, tb: np.ndarray, pairs, opt, base_xyz_m):
     """The paired rows ``m`` with their base observations interpolated to the rover's times when ``base_xyz_m`` is
-    given (:func:`~cdgps_cli.measurement.base_interpolation.interpolate_base`), each row's age (s) and the number
-    of rover epochs interpolated."""
+    given (:func:`~cdgps_cli.measurement.base_interpolation.interpolate_base`), each row's age (s), the number
+    of rover epochs interpolated and which rows were."""
     ep = m["_ep"].to_numpy()
     if base_xyz_m is None:
-        return m, pairs.age_s[ep], 0
+        return m, pairs.age_s[ep], 0, np.zeros(ep.size, dtype=bool)
     ph_b, rg_b, age, done = interpolate_base(m, b, tb, pairs.rover_time_s[ep], base_xyz_m=base_xyz_m,
                                              sync_tol_s=opt["sync_tol_s"], max_age_s=opt["max_age_s"],
                                              troposphere=opt["troposphere"])
-    return m.assign(phase_cycles_b=ph_b, pseudorange_m_b=rg_b), age, int(np.unique(ep[done]).size)
+    return m.assign(phase_cycles_b=ph_b, pseudorange_m_b=rg_b), age, int(np.unique(ep[done]).size), done
 
 
 def _sorted_codes(values):

@@ -61,7 +61,7 @@ def _model_option_errors(opt: dict) -> list:
         bad.append(f"tropo_sigma_m: expected a σ in m > 0, got {opt['tropo_sigma_m']!r}")
     for key in ("antex", "base_antenna", "rover_antenna"):
         if opt[key] is not None and not (isinstance(opt[key], (str, Path)) and str(opt[key]).strip()):
-            bad.append(f"{key}: expected a {'file' if key == 'antex' else 'antenna type'} name, got {opt[key]!r}")
+            bad.append(f"{key}: expected {'an ANTEX file' if key == 'antex' else 'an antenna type'} name, got {opt[key]!r}")
     return bad
 
 
@@ -86,6 +86,11 @@ def validate_options(options: dict) -> dict:
     if not (np.isfinite(float(opt["iono_threshold_km"])) and float(opt["iono_threshold_km"]) >= 0):
         bad.append(f"iono_threshold_km: expected a baseline length in km >= 0, got {opt['iono_threshold_km']}")
     bad += _model_option_errors(opt)
+    if not _model_option_errors(opt):               # numbers given as text (an API caller's): numbers from here on
+        for key in ("tropo_initial_m", "tropo_sigma_m", "tropo_rw_m_per_sqrt_s"):
+            opt[key] = float(opt[key])
+        if opt["tropo_threshold_km"] is not None:
+            opt["tropo_threshold_km"] = float(opt["tropo_threshold_km"])
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
@@ -230,7 +235,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     warnings += unflagged_slip_text(ev["sat"], ev["signal"], ev["time_gps_s"])
     cs = res["code_clock_steps"]
     warnings += code_steps_warning(cs["step_m"], cs["signal"], cs["time_gps_s"])
-    text = solution_text(res, sigs, opt, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
+    applied = {**opt, "antex": opt["antex"] if any(m is not None for m in ant.values()) else None}
+    text = solution_text(res, sigs, applied, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     antennas = {"antex": None if opt["antex"] is None else str(opt["antex"]),
                 **{who: (None if m is None else " ".join(m.name.split())) for who, m in ant.items()}}
@@ -677,7 +683,8 @@ def _geometry(df, nav, xyz, path, who, nav_paths, antenna=None):
     try:
         return with_antenna_model(g, antenna, xyz)
     except CdgpsError as exc:
-        raise CdgpsError(f"{path} ({who}): {exc}") from None
+        raise CdgpsError(f"{path} ({who}): {exc}; leave that signal out (--signals), give an ANTEX file that has it, "
+                         f"or --{who}-antenna none") from None
 
 
 def with_antenna_model(g: pd.DataFrame, antenna, xyz) -> pd.DataFrame:
@@ -712,9 +719,10 @@ def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> di
     CdgpsError when an antenna is not named anywhere or the file has no calibration of it."""
     if opt["antex"] is None:
         for who in ("base", "rover"):
-            if opt[f"{who}_antenna"] is not None:
-                raise CdgpsError(f"{who}_antenna (--{who}-antenna) {opt[f'{who}_antenna']!r}: no --antex file to take "
-                                 f"its calibration from")
+            name = opt[f"{who}_antenna"]
+            if name is not None and str(name).strip().lower() != "none":
+                raise CdgpsError(f"{who}_antenna (--{who}-antenna) {name!r}: no --antex file to take its calibration "
+                                 f"from")
         warnings += _mixed_antennas_note(headers, paths)
         return {"base": None, "rover": None}
     models = read_antex(opt["antex"])
@@ -725,8 +733,8 @@ def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> di
             out[who] = None
             continue
         if not name.strip():
-            raise CdgpsError(f"{paths[who]} ({who}): its header names no antenna (ANT # / TYPE); give --{who}-antenna "
-                             f"TYPE (or none) for --antex {opt['antex']}")
+            raise CdgpsError(f"{paths[who]} ({who}): the file names no antenna (a RINEX header's ANT # / TYPE; a u-blox "
+                             f"log has none); give --{who}-antenna TYPE (or none) for --antex {opt['antex']}")
         model, note = find_antenna(models, name)
         if model is None:
             raise CdgpsError(f"{opt['antex']}: no calibration of {paths[who]}'s ({who}) antenna {name.strip()!r}; give "

@@ -140,3 +140,35 @@ def test_rtk_takes_the_threshold_and_follows_the_ionosphere_s_by_default(tmp_pat
     bad = run_cli(*args, "-o", tmp_path / "bad.csv", "--tropo-threshold-km", -1)
     assert bad.exit_code == 2 and "--tropo-threshold-km -1: outside the plausible range" in bad.output
     assert not (tmp_path / "bad.csv").exists()
+
+
+def test_an_interpolated_base_observation_carries_the_wet_delay_of_the_rover_s_time():
+    """A base every 30 s and a rover every second, 500 m apart, both with 0.15 m of zenith wet delay: the rover's
+    epochs take the base interpolated to their time (measurement/base_interpolation), whose wet delay is that time's,
+    so its mapping is taken at the base's elevation then (``dd_signals._base_elevation_of_rows``).  Taken at the base
+    epoch's elevation instead (a review found it), the mismatch made the two delays' common part, which a short
+    baseline cannot see, look observed: 0.011 ± 0.028 m for 0.15; now it stays at its prior's σ, 0.21 m."""
+    t0 = gps_seconds(2024, 3, 1)
+    nav = synthetic_nav("G", t0, 1300.0, seed=2)
+    xb = np.array([-3978242.4, 3382841.2, 3649902.8])
+    xr = xb + np.array([300.0, 400.0, 2.0]) @ enu_matrix(*ecef_to_geodetic(xb)[:2])
+    geo = []
+    for k, (x, n, dt) in enumerate(((xb, 41, 30.0), (xr, 1201, 1.0))):
+        o = simulate_receiver_signals(nav, x, t0, n, dt, ("G:L1", "G:L2"), seed=k + 1, zenith_wet_m=0.15)["obs"]
+        geo.append(receiver_geometry(o.assign(wavelength_m=[signal(g).wavelength_m for g in o["signal"]]), nav, x))
+    res = solve_rtk(geo[0], geo[1], xb, xr, options={"tropo_threshold_km": 0.0, "code_noise": "model",
+                                                     "age_noise": "model", "direction": "forward", "mode": "static"})
+    assert res["epoch_pairing"]["interpolated"] > 1000
+    w = res["wet_troposphere"]
+    for who in ("base", "rover"):
+        assert w["zenith_wet_sigma_m"][who] > 0.15, w                 # the common part: not observed
+        assert abs(w["zenith_wet_m"][who] - 0.15) < 2 * w["zenith_wet_sigma_m"][who], w
+
+
+def test_wet_options_given_as_text_are_numbers_after_validation():
+    from cdgps_cli.pipeline.gnss_multi import validate_options
+
+    opt = validate_options({"tropo_threshold_km": "0", "tropo_sigma_m": "0.3", "tropo_rw_m_per_sqrt_s": "1e-4",
+                            "tropo_initial_m": "0.1"})
+    assert (opt["tropo_threshold_km"], opt["tropo_sigma_m"], opt["tropo_rw_m_per_sqrt_s"], opt["tropo_initial_m"]) == \
+        (0.0, 0.3, 1e-4, 0.1)

@@ -84,7 +84,7 @@ def test_the_range_correction_is_the_offset_along_the_line_of_sight_and_the_vari
         want = -(e * los[0] + n * los[1] + u * los[2]) + var
         assert got[k] == pytest.approx(want, abs=1e-12), k
     assert got[0] == pytest.approx(-0.1583 + VAR_L1[0] * 1e-3, abs=1e-12)      # at the zenith: the up offset alone
-    with pytest.raises(CdgpsError, match=r"no calibration for G:L2 \(the file has G01\)"):
+    with pytest.raises(CdgpsError, match=r"test.atx: antenna TRM29659.00 NONE has no calibration for G:L2 \(it has G01\)"):
         antenna_range_m(read_antex(atx)[("TRM29659.00", "NONE")], ["G:L2"], [0.0], [1.0])
 
 

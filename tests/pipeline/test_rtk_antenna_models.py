@@ -103,6 +103,13 @@ def test_rtk_takes_the_antennas_from_the_headers_or_as_named(tmp_path):
                 "SEPCHOKE_B3E6 SPKE")
     assert r.exit_code == 0, r.output
     assert json.loads(r.output[r.output.index("{"):])["antennas"]["rover"] is None
+    # both named none: no model, and the .pos header claims none; "none" without a file is no error
+    pos = tmp_path / "n.pos"
+    r = run_cli(*args, "-o", pos, "--antex", atx, "--base-antenna", "none", "--rover-antenna", "none")
+    assert r.exit_code == 0 and "receiver antenna models" not in pos.read_text(), r.output
+    r = run_cli(*args, "-o", tmp_path / "m.pos", "--antex", atx)
+    assert r.exit_code == 0 and f"receiver antenna models from {atx}" in (tmp_path / "m.pos").read_text(), r.output
+    assert run_cli(*args, "-o", tmp_path / "o.csv", "--rover-antenna", "none").exit_code == 0
     # without a file: a warning that the two antennas differ
     r = run_cli(*args, "-o", tmp_path / "c.csv")
     assert r.exit_code == 0, r.output
