@@ -27,7 +27,7 @@ import numpy as np
 
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.signals import signal
-from cdgps_cli.estimation.rtk_multi import receiver_geometry, solve_rtk
+from cdgps_cli.estimation.rtk_multi import position_nees, receiver_geometry, reported_positions, solve_rtk
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import synthetic_nav
 from cdgps_cli.sim.gnss_signals import simulate_receiver_signals
@@ -54,11 +54,8 @@ def pair(km: float, dz_m: float, zwd: tuple, n: int, dt_s: float, seed: int, wal
 def solve(geo, xb, xr, **options) -> dict:
     res = solve_rtk(geo[0], geo[1], xb, xr + np.array([0.5, -0.3, 0.8]),
                     options={"code_noise": "model", "age_noise": "model", **options})
-    ok = res["fixed"][:, None]
-    xyz = np.where(ok, res["fixed_xyz_m"], res["float_xyz_m"])
-    cov = np.where(ok[:, :, None], res["fixed_cov_m2"], res["float_cov_m2"])
-    err = xyz - xr
-    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[:, :, None])[:, :, 0])
+    xyz, cov = reported_positions(res)
+    nees = position_nees(xyz, cov, xr)
     up = enu_matrix(*ecef_to_geodetic(xr)[:2])[2]
     return {"fixed": int(res["fixed"].sum()), "epochs": int(res["fixed"].size),
             "first_fix": int(np.argmax(res["fixed"])) if res["fixed"].any() else None,

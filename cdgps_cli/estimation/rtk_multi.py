@@ -52,6 +52,7 @@ from cdgps_cli.model.gps.orbits import OMEGA_E_GPS, azimuth_elevation, ecef_to_g
 from cdgps_cli.model.gps.positioning import ephemeris_coverage, niell_wet_mapping, tropo_hydrostatic_m
 
 __all__ = ["receiver_geometry", "troposphere_at_epochs", "receivers_code_noise", "solve_rtk", "check_common_signals",
+           "reported_positions", "position_nees",
            "RTK_MODES"]
 
 #: motion models of the rover on the one engine: random-walk position, position + velocity, one position
@@ -645,6 +646,21 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "unflagged_slips": _slip_events(rows, gf_found, pairs.rover_time_s),
             "float_variance": res.get("float_variance"),
             **_velocities(res, ok)}
+
+
+def reported_positions(res: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The position each epoch of a :func:`solve_rtk` solution reports and its covariance: fixed where it is fixed,
+    else float (ECEF m (n, 3); m² (n, 3, 3))."""
+    fixed = np.asarray(res["fixed"], dtype=bool)
+    return (np.where(fixed[:, None], res["fixed_xyz_m"], res["float_xyz_m"]),
+            np.where(fixed[:, None, None], res["fixed_cov_m2"], res["float_cov_m2"]))
+
+
+def position_nees(xyz, cov, truth_xyz) -> np.ndarray:
+    """Normalised estimation error squared of positions ``xyz`` (n, 3) with covariances ``cov`` (n, 3, 3) against the
+    truth (3,) or (n, 3): eᵀ P⁻¹ e per epoch (n,); 3 on average when the covariances hold."""
+    err = np.asarray(xyz, float) - np.asarray(truth_xyz, float)
+    return np.einsum("ni,ni->n", err, np.linalg.solve(np.asarray(cov, float), err[:, :, None])[:, :, 0])
 
 
 def wet_threshold_km(opt: dict) -> float:

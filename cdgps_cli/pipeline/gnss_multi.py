@@ -26,7 +26,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
-                                            solve_rtk, troposphere_at_epochs)
+                                            reported_positions, solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
 from cdgps_cli.measurement.slips import unflagged_slip_text, without_unlocked_channels
 from cdgps_cli.io.atomic import write_atomic
@@ -347,8 +347,7 @@ def _solution_columns(res, base_xyz):
     """Per epoch: ECEF position (fixed where fixed), its covariance (ECEF), quality, geodetic and
     ENU-baseline coordinates and the ENU covariance."""
     fixed = res["fixed"]
-    xyz = np.where(fixed[:, None], res["fixed_xyz_m"], res["float_xyz_m"])
-    cov = np.where(fixed[:, None, None], res["fixed_cov_m2"], res["float_cov_m2"])
+    xyz, cov = reported_positions(res)
     lat, lon, h = ecef_to_geodetic(xyz)
     R = enu_matrix(lat, lon)                                   # (n, 3, 3) rows e, n, u
     cov_enu = np.einsum("nij,njk,nlk->nil", R, cov, R)

@@ -20,7 +20,8 @@ from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds
 from cdgps_cli.core.signals import signal
-from cdgps_cli.estimation.rtk_multi import WET_KEYS, receiver_geometry, solve_rtk, wet_threshold_km
+from cdgps_cli.estimation.rtk_multi import (WET_KEYS, position_nees, receiver_geometry, reported_positions, solve_rtk,
+                                           wet_threshold_km)
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import synthetic_nav
 from cdgps_cli.sim.gnss_signals import simulate_receiver_signals
@@ -51,11 +52,8 @@ def _solve(pair, **options):
     (gb, gr), xb, xr = pair
     opt = {"code_noise": "model", "age_noise": "model", "direction": "forward", "iono_threshold_km": 1000.0, **options}
     res = solve_rtk(gb, gr, xb, xr + np.array([0.5, -0.3, 0.8]), options=opt)
-    ok = res["fixed"][:, None]
-    xyz = np.where(ok, res["fixed_xyz_m"], res["float_xyz_m"])
-    cov = np.where(ok[:, :, None], res["fixed_cov_m2"], res["float_cov_m2"])
-    err = xyz - xr
-    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[:, :, None])[:, :, 0])
+    xyz, cov = reported_positions(res)
+    nees = position_nees(xyz, cov, xr)
     up = enu_matrix(*ecef_to_geodetic(xr)[:2])[2]
     return res, ecef_to_enu(xyz[-1], xr), float(np.sqrt(up @ cov[-1] @ up)), nees
 
