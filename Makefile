@@ -19,6 +19,7 @@ venv: $(VENV)/.installed
 # Bytecode caching on even where the environment turns it off (PYTHONDONTWRITEBYTECODE): the suite starts
 # hundreds of `cdgps` processes, each would recompile the package (tests/cli: 17.1 s -> 12.0 s wall on 2 cores).
 # The 15 slowest tests over 5 s are listed at the end, so a CI log shows where the suite's time goes.
+# Where the workers take every CPU, the commands compute a pair's two receivers in turn, not forked beside (tests/conftest.py).
 test: venv
 	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -q -n logical --maxprocesses 4 --dist loadfile --durations=15 --durations-min=5
 

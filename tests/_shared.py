@@ -44,6 +44,19 @@ def kernel(enabled: bool):
             os.environ["CDGPS_NO_KERNEL"] = old
 
 
+def can_fork() -> bool:
+    """Whether core.beside forks here when asked to (``CDGPS_SERIAL=0``): ``os.fork`` and two usable CPUs —
+    :func:`cdgps_cli.core.beside.forking_allowed` without the suite's default ``CDGPS_SERIAL=1`` (conftest.py)."""
+    from cdgps_cli.core import beside  # noqa: PLC0415
+
+    old = os.environ.pop("CDGPS_SERIAL", None)
+    try:
+        return beside.forking_allowed()
+    finally:
+        if old is not None:
+            os.environ["CDGPS_SERIAL"] = old
+
+
 def run_cli(*args):
     """``cdgps ARGS…`` in-process (Click's runner); the result (``exit_code``, ``output``)."""
     from click.testing import CliRunner  # noqa: PLC0415

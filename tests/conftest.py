@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,38 @@ import pytest
 from cdgps_cli.config.structure import load_config
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _every_cpu_runs_a_worker() -> bool:
+    """True in a pytest-xdist worker when the workers are at least as many as the CPUs this process may use."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT") or 0)
+    if not os.environ.get("PYTEST_XDIST_WORKER") or workers == 0:
+        return False
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return workers >= cpus
+
+
+# A pair's two receivers and rtk's two passes are computed on two cores (cdgps_cli.core.beside: a forked child
+# beside the caller, the same bits as in turn).  When every CPU already runs a test worker (`make test` on 2 or
+# 4 cores) there is no core to spare: a fork only adds its cost (the child faulting in its pages, the parent's
+# copy-on-write) — 100 of the suite's 622 CPU seconds, 1,400 forks of a worker process of ~340 MiB.  There the
+# commands run the two in turn (CDGPS_SERIAL=1, as on a one-CPU machine), unless the environment says otherwise
+# (CDGPS_SERIAL=0 make test: everything forked, as before).  The forked path keeps tests of its own, which force
+# it (the ``forking`` fixture): tests/core/test_beside.py, tests/pipeline/test_rtk_passes_beside.py,
+# tests/io/test_gnss_run_beside.py, tests/estimation/test_baseline.py and tests/pipeline/test_pair_beside.py
+# (each call site of core.beside, forked against in turn, bytes and warnings).
+if _every_cpu_runs_a_worker():
+    os.environ.setdefault("CDGPS_SERIAL", "1")
+
+
+@pytest.fixture
+def forking(monkeypatch):
+    """The commands fork beside (core.beside) where the machine can, whatever the suite's default
+    (CDGPS_SERIAL=1 under pytest-xdist on every CPU, above)."""
+    monkeypatch.setenv("CDGPS_SERIAL", "0")
 TESTBED_PATH = REPO_ROOT / "configs" / "testbed-1998-lumped.toml"
 DOF2_PATH = REPO_ROOT / "configs" / "teague-1995-2dof.toml"
 

@@ -11,8 +11,15 @@ import numpy as np
 import pytest
 
 from cdgps_cli.core import beside
+from tests._shared import can_fork
 
-needs_fork = pytest.mark.skipif(not beside.forking_allowed(), reason="no fork or a single CPU here")
+needs_fork = pytest.mark.skipif(not can_fork(), reason="no fork or a single CPU here")
+
+
+@pytest.fixture(autouse=True)
+def _forks(forking):
+    """Every test here forks where it can, whatever the suite's default (tests/conftest.py); a test of the
+    serial path sets CDGPS_SERIAL=1 itself."""
 
 
 @needs_fork

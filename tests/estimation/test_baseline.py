@@ -507,9 +507,10 @@ def _assert_same(a, b, where="result"):
 def test_receivers_computed_side_by_side_give_the_serial_bits(small, nav, monkeypatch):
     """The pair's two receivers are computed on two cores (core.beside.both): the same result, bit for bit,
     and the same warnings in the same order as one after the other."""
-    from cdgps_cli.core import beside
-    if not beside.forking_allowed():
+    from tests._shared import can_fork
+    if not can_fork():
         pytest.skip("no second core here")
+    monkeypatch.setenv("CDGPS_SERIAL", "0")               # forked, whatever the suite's default (conftest.py)
     side_by_side = _solve(small, nav)
     monkeypatch.setenv("CDGPS_SERIAL", "1")
     in_turn = _solve(small, nav)

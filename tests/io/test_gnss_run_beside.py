@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from cdgps_cli.core import beside
+from tests._shared import can_fork
 
 ROOT = Path(__file__).resolve().parents[2]
 GEONET = ROOT / "configs" / "geonet-0759-3040.toml"
@@ -25,7 +25,7 @@ def _ingest(out: Path, *extra, serial: bool) -> subprocess.CompletedProcess:
                            "--config", str(GEONET), *extra, "-o", str(out)], capture_output=True, text=True, env=env)
 
 
-@pytest.mark.skipif(not beside.forking_allowed(), reason="no second core here")
+@pytest.mark.skipif(not can_fork(), reason="no second core here")
 def test_a_run_read_on_two_cores_is_the_run_read_in_turn(tmp_path):
     a, b = _ingest(tmp_path / "two.mcap", serial=False), _ingest(tmp_path / "one.mcap", serial=True)
     assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr

@@ -9,12 +9,11 @@ import json
 
 import pytest
 
-from cdgps_cli.core import beside
-from tests._shared import REPO_ROOT, run_cli
+from tests._shared import REPO_ROOT, can_fork, run_cli
 
 CAR = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "geonet-car"
 pytestmark = [pytest.mark.skipif(not CAR.exists(), reason="../shared/data/real-pairs absent"),
-              pytest.mark.skipif(not beside.forking_allowed(), reason="no fork or a single CPU here")]
+              pytest.mark.skipif(not can_fork(), reason="no fork or a single CPU here")]
 BASE_XYZ = ("-3959400.631", "3385704.533", "3667523.111")
 
 
