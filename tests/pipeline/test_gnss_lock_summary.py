@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from cdgps_cli.core.gps_time import nominal_interval_s
 from cdgps_cli.io.gnss_hours import ThinTables
 from cdgps_cli.io.gnss_run import GnssReceiver, read_receiver_file
 from cdgps_cli.pipeline import gnss_ingest
@@ -82,3 +83,16 @@ def test_no_phase_at_all():
     obs = pd.DataFrame({"time_gps_s": [1.0, 2.0], "sat": ["G01", "G01"], "phase_l1_cycles": [math.nan, math.nan],
                         "lli_l1": [0, 0]})
     assert lock_summary(None, obs) == {}
+
+
+def test_a_receiver_logging_with_gaps_is_summarised_at_the_interval_it_samples_at(rover):
+    """A base that logs three epochs in five (spacings 2, 1, 2 … s: median 2 s) samples at 1 s: ``info``, ``ingest``
+    and ``config`` say so, as the solvers' grid does (they said 2 s, the median; 3 s for the real M8P base)."""
+    from cdgps_cli.io.gnss_run import _receiver_summary
+
+    raw = rover.raw
+    t = raw["time_gps_s"].to_numpy()
+    keep = np.isin(np.round(t - t[0]).astype(int) % 5, (0, 2, 3))
+    rx = GnssReceiver("base", "rinex", "base.rnx", rover.header, raw[keep].reset_index(drop=True), rover.info)
+    assert nominal_interval_s(np.unique(rx.raw["time_gps_s"].to_numpy())) == pytest.approx(2.0, abs=0.01)
+    assert _receiver_summary("base", rx, {}, ("header", None))["interval_s"] == pytest.approx(1.0, abs=1e-9)
