@@ -126,3 +126,15 @@ def test_rtk_takes_the_antennas_from_the_headers_or_as_named(tmp_path):
         text = " ".join(r.output.split())
         assert r.exit_code == 2 and "Traceback" not in r.output and not out.exists(), r.output
         assert all(w in text for w in words), (words, text)
+
+
+def test_a_u_blox_log_s_own_position_is_named_for_what_gave_it():
+    """A u-blox log has no APPROX POSITION XYZ: the warning that the rover's origin moved names its RTCM 1005/1006
+    position (a review run of the M8P base log was told of its "APPROX POSITION XYZ")."""
+    from cdgps_cli.pipeline.gnss_multi import _origin_moved_note
+
+    x = np.array([3774090.1, -601663.0, 5089319.2])
+    ubx = _origin_moved_note("base1.ubx", x, np.array([0.0, 0.0, 8.3]), False, "its static float solution",
+                             header_source="RTCM 1005/1006 position")
+    assert ubx.startswith("base1.ubx (rover): its RTCM 1005/1006 position is 8.3 m") and "APPROX" not in ubx
+    assert "its APPROX POSITION XYZ is" in _origin_moved_note("r.obs", x, np.array([0.0, 0.0, 8.3]), False)
