@@ -71,3 +71,29 @@ def run_commands(*commands) -> None:
     for args in commands:
         r = run_cli("-q", *args)
         assert r.exit_code == 0, (args, r.output)
+
+
+#: the real Septentrio mosaic-X5 pair of ../shared/data (GPS, GLONASS, Galileo, BeiDou; 1 s, 301 epochs from T0)
+MOSAIC_DIR = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
+MOSAIC_T0 = 1403252400.0                                            # 2024-06-24 08:20:00 GPST
+
+
+def write_gappy_mosaic_pair(d, base_name: str = "base_gappy.obs", rover_name: str = "rover_ms.obs"):
+    """The mosaic pair as low-cost receivers write it, into folder ``d``: the base's epochs thinned to a gappy grid
+    (1–8 s apart, seed 7) with its clock stepped by 1 ms every 7 s around −10 ms, the rover's clock stepped every 5 s
+    around −9 ms.  Returns (base path, rover path)."""
+    import numpy as np  # noqa: PLC0415
+
+    from cdgps_cli.sim.rinex_edit import edit_rinex3_obs  # noqa: PLC0415
+
+    base, rover = (MOSAIC_DIR / "base.obs").read_text(), (MOSAIC_DIR / "rover.obs").read_text()
+    rng = np.random.default_rng(7)
+    keep, t = set(), MOSAIC_T0
+    while t <= MOSAIC_T0 + 300:
+        keep.add(round(t))
+        t += int(rng.integers(1, 9))
+    (d / base_name).write_text(edit_rinex3_obs(
+        base, keep=lambda t: round(t) in keep, clock_offset_s=lambda t: -0.010 + 0.001 * ((round(t) // 7) % 2)))
+    (d / rover_name).write_text(edit_rinex3_obs(rover, clock_offset_s=lambda t: -0.009 + 0.001 * ((round(t) // 5) % 2)))
+    return d / base_name, d / rover_name
+

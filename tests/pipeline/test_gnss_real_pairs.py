@@ -18,7 +18,7 @@ from cdgps_cli.io.rinex import read_rinex_nav
 from cdgps_cli.io.solution_formats import read_pos
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic
 from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, epoch_times_gps_s, range_change_of_motion
-from tests._shared import REPO_ROOT, run_cli
+from tests._shared import REPO_ROOT, run_cli, write_gappy_mosaic_pair
 
 SHARED = REPO_ROOT.parent / "shared" / "data"
 MOSAIC = SHARED / "real-pairs" / "mosaic-static"
@@ -32,14 +32,7 @@ VIB_AMP_M, VIB_HZ = 0.004, 0.15
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("mosaic")
     base, rover = (MOSAIC / "base.obs").read_text(), (MOSAIC / "rover.obs").read_text()
-    rng = np.random.default_rng(7)
-    keep, t = set(), T0
-    while t <= T0 + 300:
-        keep.add(round(t))
-        t += int(rng.integers(1, 9))
-    (d / "base_gappy.obs").write_text(edit_rinex3_obs(
-        base, keep=lambda t: round(t) in keep, clock_offset_s=lambda t: -0.010 + 0.001 * ((round(t) // 7) % 2)))
-    (d / "rover_ms.obs").write_text(edit_rinex3_obs(rover, clock_offset_s=lambda t: -0.009 + 0.001 * ((round(t) // 5) % 2)))
+    write_gappy_mosaic_pair(d)
     (d / "base_5s.obs").write_text(edit_rinex3_obs(base, keep=lambda t: round(t) % 5 == 0))
     nav = read_rinex_nav(MOSAIC / "base.nav", systems=("G",))
     rover0 = BASE_XYZ + np.array([-0.2556, -0.6052, -0.7812])

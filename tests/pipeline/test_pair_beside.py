@@ -12,30 +12,18 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
 import pytest
 
 from cdgps_cli.core import beside
-from cdgps_cli.sim.rinex_edit import edit_rinex3_obs
-from tests._shared import REPO_ROOT, can_fork, run_cli
+from tests._shared import MOSAIC_DIR as MOSAIC, can_fork, run_cli, write_gappy_mosaic_pair
 
-MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
 pytestmark = [pytest.mark.skipif(not MOSAIC.exists(), reason="../shared/data/real-pairs absent"),
               pytest.mark.skipif(not can_fork(), reason="no fork or a single CPU here")]
 BASE_XYZ = (-3817681.1213, 3562839.4311, 3650159.1593)
-T0 = 1403252400.0                                                   # 2024-06-24 08:20:00 GPST
 
 
 def _pair(d):
-    base, rover = (MOSAIC / "base.obs").read_text(), (MOSAIC / "rover.obs").read_text()
-    rng = np.random.default_rng(7)
-    keep, t = set(), T0
-    while t <= T0 + 300:
-        keep.add(round(t))
-        t += int(rng.integers(1, 9))
-    (d / "base.obs").write_text(edit_rinex3_obs(
-        base, keep=lambda t: round(t) in keep, clock_offset_s=lambda t: -0.010 + 0.001 * ((round(t) // 7) % 2)))
-    (d / "rover.obs").write_text(edit_rinex3_obs(rover, clock_offset_s=lambda t: -0.009 + 0.001 * ((round(t) // 5) % 2)))
+    write_gappy_mosaic_pair(d, "base.obs", "rover.obs")
     r = run_cli("-q", "config", "--rinex", f"base={d / 'base.obs'}", "--rinex", f"rover={d / 'rover.obs'}",
                 "--nav", MOSAIC / "base.nav", "--master", "base", "--signals", "G:L1,G:L2,E:E1", "-o", d / "pair.toml")
     assert r.exit_code == 0, r.output
