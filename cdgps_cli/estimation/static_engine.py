@@ -663,6 +663,11 @@ def static_fix(x, P, rows, cols, *, ratio: float, partial: bool = True, min_succ
 
 #: options the static engine does not honour yet: refused by name rather than silently ignored
 _NOT_YET = {"fix_and_hold": "fix-and-hold is a kinematic (rtk) option"}
+#: rtk's options the engine has not (a caller's tables are solved as they are): refused by name, with why
+_RTK_ONLY = {**dict.fromkeys(("tropo_threshold_km", "tropo_initial_m", "tropo_sigma_m", "tropo_rw_m_per_sqrt_s"),
+                             "the static engine does not estimate zenith wet delays: 'cdgps rtk' does"),
+             **dict.fromkeys(("antex", "base_antenna", "rover_antenna"),
+                             "antenna models are taken out of the observation tables before: 'cdgps rtk --antex'")}
 
 
 def static_option_names() -> set:
@@ -672,7 +677,7 @@ def static_option_names() -> set:
 
 def _option_defaults() -> dict:
     """The engine's options and their defaults (the rtk options' own, :data:`MULTI_GNSS_DEFAULTS`, and these)."""
-    return {"partial": GNSS_DEFAULTS["partial"], **MULTI_GNSS_DEFAULTS,
+    return {"partial": GNSS_DEFAULTS["partial"], **{k: v for k, v in MULTI_GNSS_DEFAULTS.items() if k not in _RTK_ONLY},
             "fix_and_hold": False,           # rtk's default holds; a static batch has nothing to hold
             "code_noise": "model",           # baseline / init weight the codes as modelled (rtk: "auto")
             "motion": "static", "random_walk_sigma": GNSS_DEFAULTS["random_walk_sigma"],
@@ -685,6 +690,8 @@ def _option_defaults() -> dict:
 def _static_options(options: dict | None) -> dict:
     """Defaults merged with ``options``; CdgpsError naming an unknown key or one the engine does not honour."""
     opt = _option_defaults()
+    for key in sorted(set(options or {}) & set(_RTK_ONLY)):
+        raise CdgpsError(f"static baseline: option {key} = {options[key]!r} is not supported ({_RTK_ONLY[key]})")
     unknown = sorted(set(options or {}) - set(opt))
     if unknown:
         raise CdgpsError(f"static baseline: unknown option(s) {', '.join(unknown)}; known: {', '.join(sorted(opt))}")
@@ -692,13 +699,6 @@ def _static_options(options: dict | None) -> dict:
     for key, why in _NOT_YET.items():
         if opt[key]:
             raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported ({why})")
-    if opt["tropo_threshold_km"] is not None:
-        raise CdgpsError(f"static baseline: option tropo_threshold_km = {opt['tropo_threshold_km']!r} is not supported "
-                         "(the static engine does not estimate zenith wet delays: 'cdgps rtk' does)")
-    for key in ("antex", "base_antenna", "rover_antenna"):
-        if opt[key] is not None:
-            raise CdgpsError(f"static baseline: option {key} = {opt[key]!r} is not supported (antenna models are taken "
-                             "out of the observation tables before: 'cdgps rtk --antex')")
     if opt["motion"] not in ("static", "random_walk"):
         raise CdgpsError(f"static baseline: option motion = {opt['motion']!r}; expected 'static' or 'random_walk'")
     if opt["weighting"] not in GNSS_WEIGHTINGS:

@@ -85,8 +85,9 @@ def validate_options(options: dict) -> dict:
         bad.append(f"pos_frame: expected one of {', '.join(repr(f) for f in POS_FRAMES)}, got {opt['pos_frame']!r}")
     if not (np.isfinite(float(opt["iono_threshold_km"])) and float(opt["iono_threshold_km"]) >= 0):
         bad.append(f"iono_threshold_km: expected a baseline length in km >= 0, got {opt['iono_threshold_km']}")
-    bad += _model_option_errors(opt)
-    if not _model_option_errors(opt):               # numbers given as text (an API caller's): numbers from here on
+    model_bad = _model_option_errors(opt)
+    bad += model_bad
+    if not model_bad:                               # numbers given as text (an API caller's): numbers from here on
         for key in ("tropo_initial_m", "tropo_sigma_m", "tropo_rw_m_per_sqrt_s"):
             opt[key] = float(opt[key])
         if opt["tropo_threshold_km"] is not None:
@@ -573,11 +574,7 @@ def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
     try:
         off, cov, code_only = static_float_offset(gb, gr, bx, rx, {**{k: v for k, v in opt.items() if k in keys},
                                                                    "fix": False, "fix_and_hold": False,
-                                                                   "code_noise": "model",
-                                                                   # (a metre-level placement: no wet delays; the
-                                                                   # tables' antenna models are taken out already)
-                                                                   "tropo_threshold_km": None, "antex": None,
-                                                                   "base_antenna": None, "rover_antenna": None})
+                                                                   "code_noise": "model"})
         if not (np.all(np.isfinite(off)) and np.all(np.isfinite(cov))):
             return np.zeros(3), "", None
         if np.linalg.norm(off) <= ROVER_ORIGIN_TOL_M:
