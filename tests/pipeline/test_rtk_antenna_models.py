@@ -138,3 +138,27 @@ def test_a_u_blox_log_s_own_position_is_named_for_what_gave_it():
                              header_source="RTCM 1005/1006 position")
     assert ubx.startswith("base1.ubx (rover): its RTCM 1005/1006 position is 8.3 m") and "APPROX" not in ubx
     assert "its APPROX POSITION XYZ is" in _origin_moved_note("r.obs", x, np.array([0.0, 0.0, 8.3]), False)
+
+
+def test_the_rover_is_placed_whatever_rtk_only_options_are_given():
+    """The rover's origin is placed by the static engine's float (``gnss_multi._static_float_offset``), which has no
+    wet-delay or antenna options: given them (``--tropo-threshold-km``, ``--antex``), it used to refuse, and the
+    placement was skipped without a word; rtk's options the engine has not are now left out of what it is given."""
+    from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+    from cdgps_cli.io.rinex import read_rinex_nav
+    from cdgps_cli.io.rinex_signals import read_rinex_signals
+    from cdgps_cli.pipeline.gnss_multi import _static_float_offset
+    from tests._shared import MOSAIC_DIR
+
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    nav = read_rinex_nav(MOSAIC_DIR / "base.nav", systems=("G",))
+    bx = np.array([-3817681.1213, 3562839.4311, 3650159.1593])
+    _, b = read_rinex_signals(MOSAIC_DIR / "base.obs", ["G:L1"])
+    h, r = read_rinex_signals(MOSAIC_DIR / "rover.obs", ["G:L1"])
+    rx = np.asarray(h["approx_position_xyz_m"], float) + np.array([6.0, 0.0, 0.0])     # an origin 6 m off
+    gb, gr = receiver_geometry(b, nav, bx), receiver_geometry(r, nav, rx)
+    opt = {**MULTI_GNSS_DEFAULTS, "signals": ("G:L1",), "tropo_threshold_km": 0.0, "antex": "x.atx",
+           "rover_antenna": "none"}
+    moved, to, _ = _static_float_offset(gb, gr, bx, rx, opt)
+    assert to == "its static float solution" and 5.0 < np.linalg.norm(moved) < 7.0, (moved, to)
