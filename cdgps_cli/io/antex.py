@@ -70,6 +70,8 @@ def _floats(line: str, path, lineno: int, what: str, n: int | None = None) -> li
         raise CdgpsError(f"{path}: line {lineno}: {what}: expected numbers, got {line.strip()!r}") from None
     if n is not None and len(vals) < n:
         raise CdgpsError(f"{path}: line {lineno}: {what}: expected {n} numbers, got {len(vals)}")
+    if not all(np.isfinite(vals)):
+        raise CdgpsError(f"{path}: line {lineno}: {what}: expected finite numbers, got {line.strip()!r}")
     return vals
 
 
@@ -113,8 +115,9 @@ def read_antex(path: str | Path) -> dict:
     Raises
     ------
     CdgpsError
-        An unreadable file, no ``ANTEX VERSION / SYST`` header, a malformed line (its number named), an antenna
-        without its zenith grid or its variations.
+        An unreadable file, no ``ANTEX VERSION / SYST`` header, a malformed or non-finite line (its number named),
+        an antenna without its zenith grid or its variations, a file that ends inside its header or an antenna
+        (truncated), a file with no receiver antenna.
     """
     p = Path(path)
     try:
@@ -123,11 +126,11 @@ def read_antex(path: str | Path) -> dict:
         raise CdgpsError(f"{p}: cannot read: {exc.strerror or exc}") from None
     if not lines or "ANTEX VERSION / SYST" not in lines[0][60:]:
         raise CdgpsError(f"{p}: not an ANTEX file (its first line is not 'ANTEX VERSION / SYST')")
-    out, cur = {}, None
+    out, cur, started = {}, None, 0
     for i, line in enumerate(lines, start=1):
         label = line[60:].strip()
         if label == "START OF ANTENNA":
-            cur = _Entry("", False)
+            cur, started = _Entry("", False), i
         elif cur is None:
             continue
         elif label == "TYPE / SERIAL NO":
@@ -149,6 +152,13 @@ def read_antex(path: str | Path) -> dict:
             if cur.receiver:
                 out.setdefault(antenna_key(cur.name), cur.model(p, i))
             cur = None
+    if not any(ln[60:].strip() == "END OF HEADER" for ln in lines):
+        raise CdgpsError(f"{p}: no END OF HEADER: the file ends inside its header (truncated?)")
+    if not out and cur is None:
+        raise CdgpsError(f"{p}: holds no receiver antenna type calibration (an ANTEX file of satellites, or cut short)")
+    if cur is not None:
+        raise CdgpsError(f"{p}: line {started}: antenna {' '.join(cur.name.split()) or '?'} has no END OF ANTENNA: the "
+                         f"file ends inside it (truncated?)")
     return out
 
 

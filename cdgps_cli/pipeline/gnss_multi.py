@@ -733,7 +733,7 @@ def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> di
                              f"log has none); give --{who}-antenna TYPE (or none) for --antex {opt['antex']}")
         model, note = find_antenna(models, name)
         if model is None:
-            raise CdgpsError(f"{opt['antex']}: no calibration of {paths[who]}'s ({who}) antenna {name.strip()!r}; give "
+            raise CdgpsError(f"{opt['antex']}: no calibration of {paths[who]}'s ({who}) antenna {' '.join(name.split())!r}; give "
                              f"--{who}-antenna with a type the file has, or none")
         if note:
             warnings.append(f"{paths[who]} ({who}): {note}")

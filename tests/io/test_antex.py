@@ -118,3 +118,21 @@ def test_bad_files_are_named_with_their_line(tmp_path, atx):
         read_antex(bad)
     with pytest.raises(CdgpsError, match=r"cannot read"):
         read_antex(tmp_path / "missing.atx")
+    lines = atx.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if "NORTH / EAST / UP" in ln and "158.30" in ln)
+    lines[k] = _label("      0.60       nan    158.30", "NORTH / EAST / UP")
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(CdgpsError, match=rf"bad.atx: line {k + 1}: NORTH / EAST / UP: expected finite numbers"):
+        read_antex(bad)
+    lines = atx.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if "LEIAR25.R4      LEIT" in ln)
+    bad.write_text("\n".join(lines[:k + 6]) + "\n")                          # cut inside that antenna
+    with pytest.raises(CdgpsError, match=rf"bad.atx: line {k}: antenna LEIAR25.R4 LEIT has no END OF ANTENNA"):
+        read_antex(bad)
+    bad.write_text("\n".join(lines[:2]) + "\n")                              # cut inside the header
+    with pytest.raises(CdgpsError, match=r"bad.atx: no END OF HEADER"):
+        read_antex(bad)
+    k = next(i for i, ln in enumerate(lines) if "LEIAR25.R4      LEIT" in ln)
+    bad.write_text("\n".join(lines[:k - 1]) + "\n")                          # only the satellite's entry
+    with pytest.raises(CdgpsError, match=r"bad.atx: holds no receiver antenna type calibration"):
+        read_antex(bad)
