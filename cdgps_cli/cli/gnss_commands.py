@@ -40,23 +40,30 @@ from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _em
               help="Refuse a baseline at least this long: this static solution neglects the DD ionosphere and the "
                    "zenith wet delays (use 'cdgps rtk' there), as init's [gnss] iono_threshold_km "
                    f"[{GNSS_DEFAULTS['iono_threshold_km']:g}].")
+@click.option("--antex", "antex", type=click.Path(dir_okay=False), default=None,
+              help="ANTEX file (igs20.atx …): each station's antenna phase-centre offset and variations taken out of "
+                   "its observations, as 'cdgps rtk --antex' [the job's antex, else none].")
+@click.option("--antenna", "antenna", multiple=True, metavar="NAME=TYPE",
+              help="A station's antenna type and radome as the ANTEX file names them (\"TRM59800.80 SCIT\"), or none "
+                   "(no model) [its RINEX header's ANT # / TYPE].")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
 def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
-                 float_only, glonass_fix, no_troposphere, iono_threshold_km, output, as_json):
+                 float_only, glonass_fix, no_troposphere, iono_threshold_km, antex, antenna, output, as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
 
     from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
     from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
 
-    positions, origins = {}, {}
+    positions, origins, antex_job, types = {}, {}, None, {}
     if job:
         cfg = load_baseline_job(job)
         stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
         positions, origins = cfg.get("positions", {}), cfg.get("origins", {})
         iono = cfg["iono_threshold_km"]
+        antex_job, types = cfg.get("antex"), dict(cfg.get("antenna_types") or {})
     else:
         stations, navs, mst, opt = {}, [], None, BaselineOptions()
         iono = GNSS_DEFAULTS["iono_threshold_km"]
@@ -101,9 +108,18 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     _named_by_flags(opt.validate, {k: flags[k] for k in changes if k in flags})
     rover = next(n for n in stations if n != mst)
     _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
+    for it in antenna:
+        name, sep, typ = it.partition("=")
+        if not sep or not name.strip() or not typ.strip():
+            raise CdgpsError(f"--antenna expects NAME=TYPE (e.g. 3040=\"TRM59800.80 SCIT\", or rover=none), got {it!r}")
+        types[name.strip()] = typ.strip()
+    unknown = sorted(set(types) - set(stations))
+    if unknown:
+        raise CdgpsError(f"--antenna {unknown[0]}: not one of the stations given ({', '.join(stations)})")
     res = json_safe(baseline_from_files(stations, navs, mst, opt,
                                         positions={k: v for k, v in positions.items() if k in stations},
-                                        origins=origins, iono_threshold_km=iono))
+                                        origins=origins, iono_threshold_km=iono, antex=antex or antex_job,
+                                        antenna_types=types))
     if job:
         res["inputs"]["config"] = str(job)
     timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs

@@ -936,6 +936,10 @@ def _gnss_info_lines(g: dict) -> list:
     toe = g["ephemeris_toe"]
     out.append(f"    ephemerides: {g['ephemerides']} records of {g['ephemeris_satellites']} satellites"
                + (f", toe {toe[0]} – {toe[1]}" if toe else " (none: ingest with --nav before 'cdgps init')"))
+    ant = g.get("antennas")
+    if ant:
+        out.append(f"    antenna models from {ant['antex']}: " + ", ".join(f"{n} {v or 'none'}" for n, v in ant.items()
+                                                                           if n != "antex"))
     return out
 
 

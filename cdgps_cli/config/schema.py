@@ -437,6 +437,8 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
         "iono_threshold_km": _key({"type": "number", "minimum": 0},
                                   "baselines longer than this estimate the ionosphere, km",
                                   default=GNSS_DEFAULTS["iono_threshold_km"], sign="positive"),
+        "antex": _key(_STR, "ANTEX file of the receiver antennas' phase-centre calibrations (igs20.atx …), relative to "
+                            "this file: each antenna's model is taken out of its observations (default: none)"),
         "sensors": _key(_FILES, "sensor CSV logs (accelerometer, tilt, gyro; units in the column names), "
                                 "relative to this file; globs allowed", kind="paths", what="sensor log paths",
                         default=()),
@@ -448,6 +450,8 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
         "rinex": _key(_STR, "RINEX observation file (or a quoted glob of consecutive files), relative to this file"),
         "ubx": _key(_STR, "u-blox UBX log (or a quoted glob of consecutive files), relative to this file"),
         "position_ecef_m": _vec3("nominal antenna position, ECEF m (default: the RINEX header's)"),
+        "antenna_type": _key(_STR, "antenna type and radome as the ANTEX file names them (\"TRM59800.80 SCIT\"; "
+                                   "default: the RINEX header's ANT # / TYPE); \"none\": no model for this antenna"),
         "description": _text(),
     },
     "gnss.displacement": {

@@ -793,6 +793,9 @@ class GnssAntenna:
     ubx: str | None = None
     position_ecef_m: tuple | None = None
     description: str = ""
+    antenna_type: str | None = None
+    """The antenna's type and radome as the ANTEX file (``[gnss] antex``) names them; None: its RINEX header's
+    ``ANT # / TYPE``; ``"none"``: no model."""
 
 
 @dataclass(frozen=True)
@@ -838,6 +841,9 @@ class GnssConfig:
     iono_threshold_km: float = GNSS_DEFAULTS["iono_threshold_km"]
     """With ``signals``: ``cdgps init`` refuses a baseline at least this long, km (the displacement path
     neglects the DD ionosphere; ``cdgps rtk`` estimates it)."""
+    antex: str | None = None
+    """ANTEX file whose calibrations of the receivers' antennas ``ingest`` keeps in the RUN (and ``baseline`` applies):
+    each receiver's phase-centre model is taken out of its observations; None: no models."""
     signals: tuple = ()
     """Multi-GNSS signals kept at ingest (``G:L1``, ``G:L2``, ``E:E1``, ``E:E5a`` …; names of
     :mod:`cdgps_cli.core.signals`); empty: GPS L1 only (the raw tables)."""
@@ -915,6 +921,10 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         p.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({v['sync_tol_s']:g} s), got {v['max_age_s']!r}")
     model, rw, init_sigma, accel = _gnss_displacement(p, g.get("displacement", {}), ctx)
     ants = _gnss_antennas(p, g.get("antennas", {}), ctx, resolve)
+    for a in ants:
+        if a.antenna_type is not None and a.antenna_type.strip().lower() != "none" and not v["antex"]:
+            p.add(f"gnss.antennas.{a.name}.antenna_type", f"{a.antenna_type!r}: no gnss.antex file to take its "
+                                                          f"calibration from (give antex, or antenna_type = \"none\")")
     master = v["master"]
     if master is not None and ants and master not in [a.name for a in ants]:
         p.add("gnss.master", f"{master!r} is not one of gnss.antennas ({', '.join(a.name for a in ants)})")
@@ -931,7 +941,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         random_walk_sigma=rw, initial_sigma_m=init_sigma, accel_sigma_m_per_s_per_sqrt_s=accel,
         min_success_rate=v["min_success_rate"], signals=signals,
         glonass_fix=v["glonass_fix"],
-        iono_threshold_km=v["iono_threshold_km"],
+        iono_threshold_km=v["iono_threshold_km"], antex=resolve(v["antex"]) if v["antex"] else None,
     )
 
 
@@ -980,7 +990,8 @@ def _gnss_antennas(p: Problems, at, ctx: Context, resolve) -> list:
             pos = None
         ants.append(GnssAntenna(str(an), resolve(v["rinex"]) if v["rinex"] else None,
                                 resolve(v["ubx"]) if v["ubx"] else None,
-                                tuple(float(x) for x in pos) if pos is not None else None, v["description"]))
+                                tuple(float(x) for x in pos) if pos is not None else None, v["description"],
+                                v["antenna_type"]))
     return ants
 
 

@@ -25,7 +25,8 @@ import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["AntennaModel", "read_antex", "antenna_key", "find_antenna", "antenna_range_m", "ANTEX_FREQUENCIES"]
+__all__ = ["AntennaModel", "read_antex", "antenna_key", "find_antenna", "antenna_range_m", "ANTEX_FREQUENCIES",
+           "model_to_json", "model_from_json"]
 
 #: the ANTEX frequency codes of a signal, first the signal's own, then those RTKLIB-like fallbacks take (a file with
 #: GPS calibrations alone serves the other systems' bands nearest in frequency)
@@ -208,3 +209,27 @@ def antenna_range_m(model: AntennaModel, signals, az_rad, el_rad) -> np.ndarray:
         pcv = np.interp(zen[k], model.zenith_deg, model.variations_mm[f]) * 1e-3
         out[k] = -(u[k] @ pco) + pcv
     return out
+
+
+def model_to_json(model: AntennaModel) -> dict:
+    """``model`` as JSON values (a RUN keeps the calibrations it was ingested with: :func:`model_from_json`)."""
+    return {"name": model.name, "source": str(model.source), "zenith_deg": [float(z) for z in model.zenith_deg],
+            "offsets_neu_mm": {f: [float(x) for x in v] for f, v in model.offsets_neu_mm.items()},
+            "variations_mm": {f: [float(x) for x in v] for f, v in model.variations_mm.items()}}
+
+
+def model_from_json(d, where: str) -> AntennaModel:
+    """The :class:`AntennaModel` of :func:`model_to_json`'s dict; CdgpsError naming ``where`` when it is not one (a
+    key missing, a number not finite, a grid and variations of different sizes)."""
+    try:
+        zen = np.asarray(d["zenith_deg"], dtype=float)
+        off = {str(f): np.asarray(v, dtype=float) for f, v in d["offsets_neu_mm"].items()}
+        var = {str(f): np.asarray(v, dtype=float) for f, v in d["variations_mm"].items()}
+        name, source = str(d["name"]), str(d.get("source", ""))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise CdgpsError(f"{where}: not an antenna calibration ({type(exc).__name__}: {exc})") from None
+    bad = [f for f in off if off[f].shape != (3,) or f not in var or var[f].shape != zen.shape]
+    if bad or zen.ndim != 1 or zen.size < 2 or not all(np.isfinite(a).all() for a in (zen, *off.values(), *var.values())):
+        raise CdgpsError(f"{where}: not an antenna calibration (frequencies {', '.join(bad) or 'all'}: expected a "
+                         f"finite north/east/up offset and one variation per zenith angle)")
+    return AntennaModel(name, zen, off, var, source)

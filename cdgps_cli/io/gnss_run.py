@@ -34,7 +34,7 @@ from __future__ import annotations
 import json
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +53,7 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_sc
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
+from cdgps_cli.io.antex import model_from_json, model_to_json
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
@@ -72,6 +73,9 @@ GNSS_INFO_ATTACHMENT = "gnss/info.json"
 """What ``cdgps info`` says of the run's receivers (:func:`gnss_info`), written by ``ingest``: answered from it, the
 observations are not decoded (issue 29 item 3)."""
 EPHEMERIS_ATTACHMENT = "gnss/ephemeris.json"
+ANTENNAS_ATTACHMENT = "gnss/antennas.json"
+"""The receivers' antenna calibrations of ``[gnss] antex`` (:func:`antennas_json`), written by ``ingest`` when the
+config names an ANTEX file: ``init`` and ``estimate`` take them out of the observations, as ingested."""
 OBS_PREFIX = "gnss/obs/{}"
 SIGNALS_PREFIX = "gnss/signals/{}"
 
@@ -138,6 +142,11 @@ class GnssRun:
     receivers: dict
     nav: pd.DataFrame
     metadata: dict
+    antennas: dict = field(default_factory=dict)
+    """{receiver: :class:`~cdgps_cli.io.antex.AntennaModel` or None (no model)} of :data:`ANTENNAS_ATTACHMENT`; empty:
+    the run was ingested without an ANTEX file."""
+    antex: str | None = None
+    """The ANTEX file the calibrations came from, as the config named it (None: none)."""
     window: dict | None = None
     """The window of the record read (:func:`read_gnss_run` ``window``/``window_s``): ``start_s`` and ``duration_s``
     (from the record's first epoch), ``start_gps_s`` and ``end_gps_s`` (GPS s; a rover's rows t with start ≤ t < end)
@@ -551,6 +560,9 @@ class IngestInputs:
     """Antenna → its files in time order (several: one record joined, :mod:`cdgps_cli.io.gnss_sequence`)."""
     joins: dict | None = None
     """Antenna with several files → how they joined (files, gaps, overlaps; GPS s)."""
+    antennas: dict | None = None
+    """With ``[gnss] antex``: what :func:`antennas_info` says of the calibrations the run keeps (set by the ingest's
+    checks); None: none."""
 
 
 def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = None, ubx: dict | None = None,
@@ -831,7 +843,7 @@ def write_gnss_run_blocks(cfg: GnssConfig, out_path: str | Path, inp: IngestInpu
         out.attach(RECEIVERS_ATTACHMENT, json.dumps(_json_safe(rx_json), indent=1).encode(), "application/json")
         out.attach(GNSS_INFO_ATTACHMENT, gnss_info_json(gnss_info(
             cfg, master, receivers, nav, {n: c["pairing"] for n, c in common.items()} if common is not None else None,
-            lock, pos_src)), "application/json")
+            lock, pos_src, inp.antennas)), "application/json")
         out.attach(CONFIG_ATTACHMENT, cfg.text.encode("utf-8"), "application/toml")
         for name, data in (extra_attachments or {}).items():
             out.attach(name, data, "text/csv" if name.endswith(".csv") else "application/octet-stream")
@@ -1209,7 +1221,32 @@ def read_gnss_run(path: str | Path, contents=None, columns=None, window=None, wi
     master = meta.get("master") or cfg.master or next(iter(receivers))
     if master not in receivers:
         raise CdgpsError(f"{path}: the master {master!r} has no observations in the run")
-    return GnssRun(str(path), cfg, master, receivers, nav, meta, window)
+    antex, antennas = _antennas(c, path, receivers)
+    return GnssRun(str(path), cfg, master, receivers, nav, meta, antennas=antennas, antex=antex, window=window)
+
+
+def antennas_json(antex, models: dict) -> bytes:
+    """:data:`ANTENNAS_ATTACHMENT`'s bytes: the ANTEX file's name and each receiver's calibration (None: no model)."""
+    return json.dumps({"antex": str(antex), "receivers": {n: None if m is None else model_to_json(m)
+                                                          for n, m in models.items()}}, indent=1).encode()
+
+
+def _antennas(c, path, receivers: dict) -> tuple:
+    """(the ANTEX file's name, {receiver: AntennaModel or None}) of :data:`ANTENNAS_ATTACHMENT`; (None, {}) without
+    it.  CdgpsError naming the attachment when it is damaged or names a receiver the run has not."""
+    if ANTENNAS_ATTACHMENT not in c.attachments:
+        return None, {}
+    where = f"{path}: {ANTENNAS_ATTACHMENT}"
+    try:
+        doc = json.loads(c.attachments[ANTENNAS_ATTACHMENT])
+        got = doc["receivers"]
+        antex = str(doc["antex"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise CdgpsError(f"{where}: damaged ({type(exc).__name__}: {exc})") from None
+    if not isinstance(got, dict) or set(got) - set(receivers):
+        raise CdgpsError(f"{where}: damaged (expected a calibration or null per receiver of the run: "
+                         f"{', '.join(receivers)})")
+    return antex, {n: None if got.get(n) is None else model_from_json(got[n], f"{where}: {n}") for n in receivers}
 
 
 def _read_receiver(c, path, cfg: GnssConfig, i: int, rj: dict, columns, window, master: bool) -> GnssReceiver:
@@ -1329,18 +1366,25 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
     locks = {n: lock_summary(r, run.cfg.signals) for n, r in run.receivers.items()} if lock_summary else {}
     positions = {n: (r.info.get("position_source"), r.info.get("position_ecef_m")) for n, r in run.receivers.items()}
     info = gnss_info(run.cfg, run.master, run.receivers, run.nav, common_epochs(run) if common_epochs else None,
-                     locks, positions)
+                     locks, positions, antennas_info(run.antex, run.antennas) if run.antex is not None else None)
     # JSON-safe as the record ingest wrote (NaN -> null: the interval of a one-epoch receiver), so that info from
     # the record and info --deep print the same
     return {"config": info["config"], **json.loads(gnss_info_json(info))}
 
 
+def antennas_info(antex, models: dict) -> dict:
+    """What ``info``, INIT and STATES say of a run's antenna calibrations: the ANTEX file as the config named it and
+    each receiver's antenna type and radome as that file writes them (None: no model)."""
+    return {"antex": str(antex), **{n: None if m is None else " ".join(m.name.split()) for n, m in models.items()}}
+
+
 def gnss_info(cfg: GnssConfig, master: str, receivers: dict, nav, pairing: dict | None, locks: dict,
-              positions: dict) -> dict:
+              positions: dict, antennas: dict | None = None) -> dict:
     """The GNSS part of ``cdgps info``: config, master, receivers with lock counters (``locks``: name → per satellite),
     epoch pairing (``pairing``: rover → its summary, or None), ephemerides.  ``ingest`` writes it into the RUN
     (:data:`GNSS_INFO_ATTACHMENT`), from which ``info`` answers without decoding the observations; ``info --deep``
-    computes it again from the decoded run and refuses a file whose record differs."""
+    computes it again from the decoded run and refuses a file whose record differs.  ``antennas``: the run's antenna
+    calibrations (:func:`antennas_info`), None: none (the key is then left out)."""
     rx = []
     for n, r in receivers.items():
         lock = locks.get(n, {})
@@ -1361,6 +1405,7 @@ def gnss_info(cfg: GnssConfig, master: str, receivers: dict, nav, pairing: dict 
         "ephemerides": int(len(nav)) if has_nav else 0, "ephemeris_satellites": int(nav["sat"].nunique()) if has_nav else 0,
         "ephemeris_toe": [gps_time_str(float(nav["toe_gps_s"].min())), gps_time_str(float(nav["toe_gps_s"].max()))]
         if has_nav else None,
+        **({"antennas": antennas} if antennas is not None else {}),
     }
 
 

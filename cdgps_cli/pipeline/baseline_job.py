@@ -19,10 +19,12 @@ from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.io.gnss_run import merge_nav
+from cdgps_cli.io.gnss_run import antennas_info, merge_nav
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables
 from cdgps_cli.io.rinex import read_rinex_obs
+from cdgps_cli.model.gps.positioning import antenna_reference_point_m
+from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_antenna_model
 
 __all__ = ["load_stations", "baseline_from_files", "load_baseline_job", "refuse_missing_files"]
 
@@ -71,13 +73,16 @@ def refuse_missing_files(rinex: dict, nav_paths, origins: dict | None = None) ->
 
 def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
                         positions: dict | None = None, origins: dict | None = None,
-                        iono_threshold_km: float | None = IONO_THRESHOLD_KM) -> dict:
+                        iono_threshold_km: float | None = IONO_THRESHOLD_KM, antex=None,
+                        antenna_types: dict | None = None) -> dict:
     """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
     names to observation files, ``master`` is one of them; ``positions`` optionally gives
     ``{name: ECEF m}`` instead of the RINEX header positions; ``origins`` names where each path was
     given (:func:`refuse_missing_files`).  A baseline at least ``iono_threshold_km`` long is refused, as ``init``
     refuses it (:func:`~cdgps_cli.estimation.baseline.check_iono_rule`: this solution neglects the DD ionosphere and
-    the wet delays); None: not checked."""
+    the wet delays); None: not checked.  ``antex``: an ANTEX file whose calibrations of the two antennas (named by
+    ``antenna_types`` {station: type or "none"}, else by their RINEX headers) are taken out of their observations
+    (:mod:`cdgps_cli.pipeline.antenna_models`); the result's ``antennas`` says which."""
     if len(rinex) != 2:
         raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
                          f"{', '.join(rinex) or 'none'}")
@@ -93,6 +98,8 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     shown = {k: v if isinstance(v, (str, Path)) else pieces_text(v) for k, v in rinex.items()}
     rover = next(n for n in rinex if n != master)
     pos = positions or {}
+    stations, antennas = _with_antenna_models(stations, nav, (master, rover), pos, shown, antex, antenna_types or {},
+                                              joins)
     try:
         res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
                                     rover_xyz=pos.get(rover), engine=True, iono_threshold_km=iono_threshold_km)
@@ -106,13 +113,44 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
                      "nav": [str(p) for p in nav_paths]}
     if joins:
         res["warnings"] = [*joins, *res.get("warnings", [])]
+    if antennas is not None:
+        res["antennas"] = antennas
     return res
+
+
+def _with_antenna_models(stations: dict, nav, order: tuple, positions: dict, shown: dict, antex, types: dict,
+                         warnings: list) -> tuple[dict, dict | None]:
+    """(the stations with their antennas' calibrations from ``antex`` taken out, the result's ``antennas`` record, or
+    None without a file); without one, ``warnings`` gets a note when the headers name different antenna types."""
+    models = antenna_models(antex, {n: types.get(n) for n in order}, {n: stations[n].header for n in order},
+                            {n: shown[n] for n in order}, warnings, {n: f"--antenna {n}=TYPE" for n in order})
+    if antex is None:
+        return stations, None
+    out = dict(stations)
+    for n in order:
+        if models[n] is not None:
+            out[n] = station_with_antenna_model(stations[n], nav, _seen_from(stations, order, positions, shown, n),
+                                                models[n])
+    return out, antennas_info(antex, models)
+
+
+def _seen_from(stations: dict, order: tuple, positions: dict, shown: dict, n: str):
+    """Where station ``n``'s satellites are seen from for its calibration (metres do not matter): its given position,
+    its header's, else the master's (``order[0]``).  CdgpsError when none is known."""
+    for m in (n, order[0]):
+        xyz = positions.get(m)
+        xyz = antenna_reference_point_m(stations[m].header, f"{shown[m]} ({m})") if xyz is None else xyz
+        if xyz is not None:
+            return xyz
+    raise CdgpsError(f"{shown[n]} ({n}): no position to evaluate its antenna calibration at (no header position, "
+                     f"nor the master's)")
 
 
 _JOB_KEYS = {
     "name": str, "description": str, "master": str, "nav": list, "rinex": dict, "mask_deg": (int, float),
     "ratio": (int, float), "partial": bool, "weighting": str, "troposphere": bool, "sigma_a_m": (int, float),
     "sigma_b_m": (int, float), "code_ratio": (int, float), "max_gap_s": (int, float), "iono_threshold_km": (int, float),
+    "antex": str,
 }
 
 
@@ -127,8 +165,9 @@ def load_baseline_job(path) -> dict:
     dict
         ``name``, ``master``, ``rinex`` ({name: Path}), ``nav`` ([Path]), ``options``
         (:class:`BaselineOptions`), ``positions`` ({name: ECEF m} given in the file; the
-        others come from the RINEX headers) and ``origins`` (the file and key that give each
-        station's file and the navigation files, for :func:`refuse_missing_files`).
+        others come from the RINEX headers), ``origins`` (the file and key that give each
+        station's file and the navigation files, for :func:`refuse_missing_files`), ``antex`` (the ANTEX file
+        or None) and, from a GNSS run config, ``antenna_types`` ({name: antenna_type given}).
 
     Raises
     ------
@@ -200,8 +239,10 @@ def load_baseline_job(path) -> dict:
     iono = float(b.get("iono_threshold_km", IONO_THRESHOLD_KM))
     if not (math.isfinite(iono) and iono >= 0):
         raise CdgpsError(f"{p}: baseline.iono_threshold_km: expected a baseline length in km >= 0, got {iono!r}")
+    antex = b.get("antex")
     return {"name": b.get("name", p.stem), "master": b["master"], "rinex": rinex, "nav": nav, "options": opt,
-            "positions": {}, "origins": origins, "iono_threshold_km": iono}
+            "positions": {}, "origins": origins, "iono_threshold_km": iono,
+            "antex": None if antex is None else (base / antex if not Path(antex).is_absolute() else Path(antex))}
 
 
 def _job_from_gnss_config(p: Path, text: str) -> dict:
@@ -231,4 +272,5 @@ def _job_from_gnss_config(p: Path, text: str) -> dict:
             "nav": [Path(n) for n in cfg.nav], "options": opt, "iono_threshold_km": cfg.iono_threshold_km,
             "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None},
             "origins": {"rinex": {a.name: f"{p}: [gnss.antennas.{a.name}] rinex" for a in cfg.antennas},
-                        "nav": f"{p}: [gnss] nav"}}
+                        "nav": f"{p}: [gnss] nav"},
+            "antex": cfg.antex, "antenna_types": {a.name: a.antenna_type for a in cfg.antennas if a.antenna_type}}

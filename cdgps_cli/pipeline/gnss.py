@@ -55,7 +55,8 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
-from cdgps_cli.io.gnss_run import GnssRun
+from cdgps_cli.io.gnss_run import GnssRun, antennas_info
+from cdgps_cli.pipeline.antenna_models import receiver_with_antenna_model
 from cdgps_cli.pipeline.gnss_ingest import anchor_obs, signal_obs
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
@@ -86,11 +87,29 @@ def _stations(run: GnssRun, notes: dict | None = None):
     sigs = tuple(run.cfg.signals)
     stations = {}
     for n, rx in run.receivers.items():
+        rx = receiver_with_antenna_model(rx, run.nav, _antenna_xyz(run, n), run.antennas.get(n))
         table, said = without_unlocked_channels(signal_obs(rx) if sigs else None, f"{rx.file} ({n})")
         if notes is not None:
             notes[n] = said
         stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), table)
     return stations
+
+
+def _antenna_xyz(run: GnssRun, name: str) -> np.ndarray | None:
+    """Where receiver ``name``'s satellites are seen from for its antenna model (the elevations and azimuths of its
+    calibration; metres do not matter): its given position, its header's, else the master's (a rover placed by
+    single-point positioning later is within kilometres of it); None without any."""
+    if name not in run.antennas or run.antennas[name] is None:
+        return None
+    for n in (name, run.master):
+        p = _position_args(run, n)
+        h = run.receivers[n].header.get("approx_position_xyz_m")
+        if p is None and h is not None and np.linalg.norm(np.asarray(h, dtype=float)) > 6.0e6:
+            p = np.asarray(h, dtype=float)
+        if p is not None:
+            return p
+    raise CdgpsError(f"{run.path}: {name}: no position to evaluate its antenna calibration at (no position_ecef_m, no "
+                     f"RINEX header position, nor the master's)")
 
 
 def _position_args(run: GnssRun, name: str):
@@ -200,7 +219,13 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
         "options": json_safe(asdict(opt)),
         **_signals_summary(run, rovers),
         **({"window": run.window} if run.window is not None else {}),
+        **({"antennas": antennas_summary(run)} if run.antex is not None else {}),
     }
+
+
+def antennas_summary(run: GnssRun) -> dict:
+    """The antenna calibrations a run's observations are corrected by (:func:`~cdgps_cli.io.gnss_run.antennas_info`)."""
+    return antennas_info(run.antex, run.antennas)
 
 
 def n_fixed_with_glonass(ambiguities: dict) -> int:
@@ -600,7 +625,8 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
-                  "options": {**_signals_summary(run, {r: v[0] for r, v in per.items()}), **(extra_options or {})}}
+                  "options": {**_signals_summary(run, {r: v[0] for r, v in per.items()}), **(extra_options or {}),
+                              **({"antennas": antennas_summary(run)} if run.antex is not None else {})}}
     residual_m = np.column_stack(a.res_vals) if a.res_vals else np.zeros((t_all.size, 0))
     out = _write_gnss_states(run, init, init_text, out_path, names, t_all, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
                              a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,

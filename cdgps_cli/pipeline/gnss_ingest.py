@@ -31,6 +31,7 @@ from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_loss_of_loc
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.config.options import HEADER_CHECK_EPOCHS, HEADER_POSITION_TOL_M
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, spp_spread
+from cdgps_cli.pipeline.antenna_models import antenna_models
 
 __all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_of_lock", "lock_summary", "starter_gnss_config",
            "spp_master_position"]
@@ -110,9 +111,10 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
+    ant_att, ant_inputs = antenna_parts(cfg, inp)
     att, extra_inputs, done = _sensor_parts(inp, _sensors(cfg, sensor_paths))
-    s = done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments=att,
-                                     extra_inputs=extra_inputs))
+    s = done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments={**(att or {}), **ant_att} or None,
+                                     extra_inputs={**extra_inputs, **ant_inputs}))
     s["reading"] = {"hour_by_hour": False, "blocks": None, "why_whole": "; ".join(why) or None}
     return s
 
@@ -122,7 +124,7 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
     observations written as they are read, the checks made on the thin tables once the last block is in."""
     heap.map_large_blocks(1 << 20)         # each block's arrays unmapped when freed: the blocks' memory does not pile up
     sensors = _sensors(cfg, sensor_paths)
-    extra_inputs = _sensor_inputs(sensors)
+    extra_inputs = {**_sensor_inputs(sensors), **({"antex": cfg.antex} if cfg.antex else {})}
     parts = {}
 
     def finish():
@@ -131,16 +133,43 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
                 _check_coverage(inp, cfg.signals)
             pos_src = gnss_run.nominal_positions(cfg, inp)
             common = _common_epochs(cfg, inp)
+            ant_att, _ = antenna_parts(cfg, inp)
         except CdgpsError as exc:
             raise _ChecksRefused(exc) from None
         lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
         att, _, parts["done"] = _sensor_parts(inp, sensors, esf=False)
-        return pos_src, common, lock, att
+        return pos_src, common, lock, {**(att or {}), **ant_att} or None
 
     say(f"writing {out_path} …")
     names = [inp.master, *[n for n in inp.files if n != inp.master]]
     s = gnss_run.write_gnss_run_blocks(cfg, out_path, inp, names, blocks, finish, extra_inputs)
     return parts["done"](s)
+
+
+def antenna_parts(cfg: GnssConfig, inp) -> tuple[dict, dict]:
+    """(the RUN's attachment of the receivers' antenna calibrations, {name: bytes}; its hashed input, {key: path}) of
+    ``[gnss] antex`` (both empty without it): each receiver's model as ``[gnss.antennas.NAME] antenna_type`` or its
+    RINEX header names it (:func:`~cdgps_cli.pipeline.antenna_models.antenna_models`; ``init`` and ``estimate`` take
+    them out of its observations: :func:`~cdgps_cli.io.gnss_run.read_gnss_run`'s ``antennas``).  Without the key, a
+    warning in ``inp.warnings`` when the headers name antennas of different types."""
+    names = [inp.master, *[n for n in inp.receivers if n != inp.master]]
+    named = {n: (cfg.antenna(n).antenna_type if cfg.antenna(n) is not None else None) for n in names}
+    headers = {n: inp.receivers[n].header for n in names}
+    paths = {n: inp.receivers[n].file for n in names}
+    models = antenna_models(cfg.antex, named, headers, paths, inp.warnings,
+                            {n: f"[gnss.antennas.{n}] antenna_type" for n in names}, "[gnss] antex")
+    if cfg.antex is None:
+        return {}, {}
+    for n, m in models.items():
+        lacking = [g for g in (cfg.signals or ("G:L1",)) if m is not None and m.frequency(g) is None]
+        if lacking:
+            raise CdgpsError(f"{cfg.antex}: antenna {' '.join(m.name.split())} ({paths[n]}, {n}) has no calibration for "
+                             f"{', '.join(lacking)} (it has {', '.join(sorted(m.offsets_neu_mm))}); leave the signal out "
+                             f"of [gnss] signals, give an ANTEX file that has it, or [gnss.antennas.{n}] antenna_type "
+                             f"= \"none\"")
+    name = Path(cfg.antex).name           # as the RUN's inputs name it (their sha256 beside it): no machine's path
+    inp.antennas = gnss_run.antennas_info(name, models)
+    return {gnss_run.ANTENNAS_ATTACHMENT: gnss_run.antennas_json(name, models)}, {"antex": cfg.antex}
 
 
 class _ChecksRefused(Exception):

@@ -36,9 +36,9 @@ from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
 from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_text, read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
-from cdgps_cli.io.antex import antenna_key, antenna_range_m, find_antenna, read_antex
-from cdgps_cli.model.gps.orbits import azimuth_elevation, ecef_to_enu, ecef_to_geodetic, enu_matrix
+from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m, rover_delta_note, spp_spread
+from cdgps_cli.pipeline.antenna_models import antenna_models, with_antenna_model
 
 __all__ = ["validate_options", "rtk_from_files", "common_signals"]
 
@@ -683,62 +683,11 @@ def _geometry(df, nav, xyz, path, who, nav_paths, antenna=None):
                          f"or --{who}-antenna none") from None
 
 
-def with_antenna_model(g: pd.DataFrame, antenna, xyz) -> pd.DataFrame:
-    """A receiver's geometry table (:func:`~cdgps_cli.estimation.rtk_multi.receiver_geometry`) with its antenna's
-    range correction d (:func:`~cdgps_cli.io.antex.antenna_range_m`, at each satellite's azimuth and elevation from
-    ``xyz``) taken out of every phase (d / λ cycles) and pseudorange (d m): the observations of the antenna reference
-    point, which the positions are.  The attrs are kept."""
-    az, el = azimuth_elevation(np.asarray(xyz, float), g[["sx", "sy", "sz"]].to_numpy(dtype=float))
-    d = antenna_range_m(antenna, g["signal"].to_numpy(), az, el)
-    out = g.assign(phase_cycles=g["phase_cycles"].to_numpy(dtype=float) - d / g["wavelength_m"].to_numpy(dtype=float),
-                   pseudorange_m=g["pseudorange_m"].to_numpy(dtype=float) - d)
-    out.attrs = dict(g.attrs)
-    return out
-
-
-def _mixed_antennas_note(headers: dict, paths: dict) -> list:
-    """A warning when the two headers name antennas of different types (:func:`~cdgps_cli.io.antex.antenna_key`) and no
-    ANTEX file is given: the positions are then the rover's phase centre placed from the base's, whose offsets differ
-    by centimetres between types (on the real 164 km DELF → EIJS pair, 66 mm in height, and a wrong fix)."""
-    names = {who: (headers[who].get("antenna_type") or "").strip() for who in ("base", "rover")}
-    if not all(names.values()) or antenna_key(names["base"]) == antenna_key(names["rover"]):
-        return []
-    return [f"the antennas differ ({paths['base']} (base): {' '.join(names['base'].split())}; {paths['rover']} (rover): "
-            f"{' '.join(names['rover'].split())}) and no --antex file is given: their phase-centre offsets, centimetres "
-            f"apart between types, are in the rover's position (its height most), and on a long baseline they can "
-            f"give wrong integers"]
-
-
 def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> dict:
-    """{"base": model, "rover": model} of option ``antex`` (None each without it): each receiver's antenna is its
-    option's (``base_antenna`` / ``rover_antenna``; "none": no model) or its RINEX header's ``ANT # / TYPE``.
-    CdgpsError when an antenna is not named anywhere or the file has no calibration of it."""
-    if opt["antex"] is None:
-        for who in ("base", "rover"):
-            name = opt[f"{who}_antenna"]
-            if name is not None and str(name).strip().lower() != "none":
-                raise CdgpsError(f"{who}_antenna (--{who}-antenna) {name!r}: no --antex file to take its calibration "
-                                 f"from")
-        warnings += _mixed_antennas_note(headers, paths)
-        return {"base": None, "rover": None}
-    models = read_antex(opt["antex"])
-    out = {}
-    for who in ("base", "rover"):
-        name = opt[f"{who}_antenna"] or (headers[who].get("antenna_type") or "")
-        if name.strip().lower() == "none":
-            out[who] = None
-            continue
-        if not name.strip():
-            raise CdgpsError(f"{paths[who]} ({who}): the file names no antenna (a RINEX header's ANT # / TYPE; a u-blox "
-                             f"log has none); give --{who}-antenna TYPE (or none) for --antex {opt['antex']}")
-        model, note = find_antenna(models, name)
-        if model is None:
-            raise CdgpsError(f"{opt['antex']}: no calibration of {paths[who]}'s ({who}) antenna {' '.join(name.split())!r}; give "
-                             f"--{who}-antenna with a type the file has, or none")
-        if note:
-            warnings.append(f"{paths[who]} ({who}): {note}")
-        out[who] = model
-    return out
+    """{"base": model, "rover": model} of option ``antex`` (:func:`~cdgps_cli.pipeline.antenna_models.antenna_models`;
+    each receiver's antenna is its option's, ``base_antenna`` / ``rover_antenna``, or its RINEX header's)."""
+    return antenna_models(opt["antex"], {"base": opt["base_antenna"], "rover": opt["rover_antenna"]}, headers, paths,
+                          warnings, {w: f"{w}_antenna (--{w}-antenna)" for w in ("base", "rover")})
 
 
 def is_ubx_log(path) -> bool:

@@ -1,5 +1,5 @@
 """``rtk --antex``: the receiver antennas' phase-centre models taken out of the observations
-(``gnss_multi.with_antenna_model``, ``_antenna_models``).
+(``pipeline.antenna_models``, ``gnss_multi._antenna_models``).
 
 Simulator truth: the simulator observes each receiver at its phase centre; placed there, 7 and 16 cm above the antenna
 reference points (and off them by millimetres sideways), with the base held at its reference point, the rover's
@@ -22,7 +22,7 @@ from cdgps_cli.estimation.rtk_multi import receiver_geometry, solve_rtk
 from cdgps_cli.io.antex import read_antex
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
 from cdgps_cli.model.gps.positioning import synthetic_nav
-from cdgps_cli.pipeline.gnss_multi import with_antenna_model
+from cdgps_cli.pipeline.antenna_models import with_antenna_model
 from cdgps_cli.sim.gnss_signals import simulate_receiver_signals
 from tests.io.test_antex import antenna_block, write_antex
 

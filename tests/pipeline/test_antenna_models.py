@@ -1,0 +1,209 @@
+"""Receiver antenna models in the static and modal path (``pipeline.antenna_models``): ``baseline --antex``, and
+``[gnss] antex`` through ``ingest`` → ``init`` → ``estimate``.
+
+Real data: the real mosaic-X5 rover of ``real-pairs/mosaic-static`` given a known phase-centre offset — every
+pseudorange and phase moved by the range change of that offset along each satellite's line of sight
+(``sim.rinex_edit``, computed from the broadcast orbits independently of the module under test) — is the
+observations an antenna with that offset would have made at the same reference point.  Without the model the
+solution moves by the offset; with an ANTEX file giving it, the solution is the unedited file's.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from _shared import MOSAIC_DIR, REPO_ROOT, run_cli
+
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
+from cdgps_cli.core.gps_time import gps_seconds
+from cdgps_cli.io.antex import model_from_json, model_to_json, read_antex
+from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix, sat_position_ecef, select_ephemeris
+from cdgps_cli.model.gps.positioning import synthetic_nav
+from cdgps_cli.pipeline.antenna_models import obs_with_antenna_model, signals_with_antenna_model
+from tests.io.test_antex import antenna_block, write_antex
+
+#: the rover antenna's phase-centre offset, north, east, up (mm), the same on every frequency
+PCO_MM = (4.0, -3.0, 120.0)
+ZEN = np.arange(0.0, 90.1, 5.0)
+PCV_L1_MM = np.round(2.0 * np.sin(np.radians(ZEN)), 2)      # as the file writes them
+
+
+@pytest.fixture(scope="module")
+def antex(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("atx") / "r.atx"
+    write_antex(p, [antenna_block("ROVERANT        NONE", {f: (PCO_MM, np.zeros(19)) for f in ("G01", "G02")}),
+                    antenna_block("VARIANT         NONE", {"G01": (PCO_MM, PCV_L1_MM)})])
+    return p
+
+
+def _independent_range_m(nav, sat, t, xyz, pco_mm, pcv_mm):
+    """−PCO·u + PCV(z) of one satellite at time t from ``xyz``, from the ENU vector to the satellite."""
+    p, _ = sat_position_ecef(select_ephemeris(nav, sat, np.array([t])), np.array([t]))
+    v = ecef_to_enu(np.asarray(p, float).reshape(3), xyz)
+    u = v / np.linalg.norm(v)
+    n, e, up = np.asarray(pco_mm) * 1e-3
+    zen = np.degrees(np.arccos(u[2]))
+    return -(u @ [e, n, up]) + np.interp(zen, ZEN, pcv_mm) * 1e-3
+
+
+def test_a_gps_l1_table_and_a_signal_table_are_corrected_as_the_closed_form_says(antex):
+    t0 = gps_seconds(2024, 3, 1)
+    nav = synthetic_nav("G", t0, 3600.0, seed=3)
+    xyz = np.array([-3978242.4, 3382841.2, 3649902.8])
+    model = read_antex(antex)[("VARIANT", "NONE")]
+    # three satellites above the horizon (47.8°, 16.3°, 31.1°), one below it, a Galileo row (not GPS L1) and a
+    # satellite without ephemeris
+    sats = ["G05", "G07", "G15", "G01", "E11", "G99"]
+    obs = pd.DataFrame({"time_gps_s": np.full(6, t0 + 600.0), "sat": sats, "phase_l1_cycles": np.full(6, 1.0e8),
+                        "pseudorange_l1_m": np.full(6, 2.2e7), "lli_l1": np.zeros(6, dtype=np.int64)})
+    obs.attrs = {"note": 1}
+    out = obs_with_antenna_model(obs, nav, xyz, model)
+    d = obs["pseudorange_l1_m"] - out["pseudorange_l1_m"]
+    for k, s in enumerate(sats[:4]):
+        assert d[k] == pytest.approx(_independent_range_m(nav, s, t0 + 600.0, xyz, PCO_MM, PCV_L1_MM), abs=1e-8), s
+    assert d[4] == 0.0 and d[5] == 0.0
+    np.testing.assert_allclose((obs["phase_l1_cycles"] - out["phase_l1_cycles"]) * GPS_L1_WAVELENGTH_M, d, atol=1e-6)
+    assert out.attrs == {"note": 1} and list(out.columns) == list(obs.columns)
+    assert out["lli_l1"].equals(obs["lli_l1"])
+    sig = pd.DataFrame({"time_gps_s": [t0 + 600.0] * 2, "sat": ["G05", "G05"], "signal": ["G:L1", "G:L2"],
+                        "phase_cycles": [1.0e8, 0.8e8], "pseudorange_m": [2.2e7, 2.2e7], "wavelength_m": [0.1903, 0.2442]})
+    with pytest.raises(Exception, match="no calibration for G:L2"):       # VARIANT has G01 only
+        signals_with_antenna_model(sig, nav, xyz, model)
+    both = read_antex(antex)[("ROVERANT", "NONE")]
+    got = signals_with_antenna_model(sig, nav, xyz, both)
+    dd = sig["pseudorange_m"] - got["pseudorange_m"]
+    assert dd[0] == pytest.approx(_independent_range_m(nav, "G05", t0 + 600.0, xyz, PCO_MM, np.zeros(19)), abs=1e-8)
+    np.testing.assert_allclose((sig["phase_cycles"] - got["phase_cycles"]) * sig["wavelength_m"], dd, atol=1e-6)
+
+
+def test_a_calibration_survives_its_json_round_trip(antex):
+    m = read_antex(antex)[("VARIANT", "NONE")]
+    back = model_from_json(json.loads(json.dumps(model_to_json(m))), "here")
+    assert back.name == m.name and back.source == m.source
+    np.testing.assert_array_equal(back.zenith_deg, m.zenith_deg)
+    np.testing.assert_array_equal(back.variations_mm["G01"], m.variations_mm["G01"])
+    np.testing.assert_array_equal(back.offsets_neu_mm["G01"], m.offsets_neu_mm["G01"])
+    bad = model_to_json(m)
+    bad["variations_mm"]["G01"] = bad["variations_mm"]["G01"][:-1]
+    with pytest.raises(Exception, match="here: not an antenna calibration"):
+        model_from_json(bad, "here")
+
+
+# ---- the real mosaic pair, the rover given a known offset
+
+
+@pytest.fixture(scope="module")
+def pco_pair(tmp_path_factory):
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+    from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, epoch_times_gps_s, range_change_of_motion
+
+    d = tmp_path_factory.mktemp("pco")
+    nav = read_rinex_nav(MOSAIC_DIR / "base.nav", systems=("G",))
+    text = (MOSAIC_DIR / "rover.obs").read_text()
+    xyz = np.asarray(read_rinex_obs(MOSAIC_DIR / "rover.obs")[0]["approx_position_xyz_m"], float)
+    enu = np.array([PCO_MM[1], PCO_MM[0], PCO_MM[2]]) * 1e-3
+    edited = edit_rinex3_obs(text, range_change_m=range_change_of_motion(nav, xyz, lambda t: enu, epoch_times_gps_s(text)))
+    (d / "rover_pco.obs").write_text(edited)
+    write_antex(d / "r.atx", [antenna_block("ROVERANT        NONE", {f: (PCO_MM, np.zeros(19)) for f in ("G01", "G02")}),
+                              antenna_block("L1ONLY          NONE", {"G01": (PCO_MM, np.zeros(19))})])
+    return d
+
+
+def _baseline(d, rover, *extra):
+    out = d / f"b{len(list(d.glob('b*.json')))}.json"
+    r = run_cli("baseline", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={rover}", "--nav",
+                MOSAIC_DIR / "base.nav", "--master", "base", "-o", out, "-q", *extra)
+    assert r.exit_code == 0, r.output
+    return json.loads(out.read_text())
+
+
+def test_baseline_takes_a_known_offset_out_of_a_real_rover(pco_pair):
+    d = pco_pair
+    orig = np.array(_baseline(d, MOSAIC_DIR / "rover.obs")["baseline_enu_from_master_m"])
+    raw = _baseline(d, d / "rover_pco.obs")
+    assert "antennas" not in raw
+    model = _baseline(d, d / "rover_pco.obs", "--antex", d / "r.atx", "--antenna", "rover=ROVERANT NONE", "--antenna",
+                      "base=none")
+    assert model["antennas"] == {"antex": str(d / "r.atx"), "base": None, "rover": "ROVERANT NONE"}
+    e, n, u = (PCO_MM[1], PCO_MM[0], PCO_MM[2])
+    np.testing.assert_allclose(np.array(raw["baseline_enu_from_master_m"]) - orig, np.array([e, n, u]) * 1e-3, atol=2e-4)
+    np.testing.assert_allclose(np.array(model["baseline_enu_from_master_m"]) - orig, 0.0, atol=2e-5)
+
+
+def _config(d, name: str, rover: Path, antex: bool) -> Path:
+    lines = ["[gnss]", 'master = "base"', f'nav = ["{MOSAIC_DIR / "base.nav"}"]', 'signals = ["G:L1", "G:L2"]']
+    lines += ['antex = "r.atx"'] if antex else []
+    lines += ["[gnss.antennas.base]", f'rinex = "{MOSAIC_DIR / "base.obs"}"'] + (['antenna_type = "none"'] if antex else [])
+    lines += ["[gnss.antennas.rover]", f'rinex = "{rover}"'] + (['antenna_type = "ROVERANT NONE"'] if antex else [])
+    p = d / f"{name}.toml"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+def _ingest_init(d, name, rover, antex):
+    cfg = _config(d, name, rover, antex)
+    for args in (("ingest", "--config", cfg, "-o", d / f"{name}.mcap", "-q"),
+                 ("init", d / f"{name}.mcap", "-o", d / f"{name}.json", "-q")):
+        r = run_cli(*args)
+        assert r.exit_code == 0, r.output
+    return json.loads((d / f"{name}.json").read_text())
+
+
+def test_init_and_estimate_take_the_run_s_calibrations(pco_pair):
+    d = pco_pair
+    orig = _ingest_init(d, "orig", MOSAIC_DIR / "rover.obs", False)
+    got = _ingest_init(d, "model", d / "rover_pco.obs", True)
+    assert "antennas" not in orig and got["antennas"] == {"antex": "r.atx", "base": None, "rover": "ROVERANT NONE"}
+    for c in "enu":
+        assert got["states"][f"rover_{c}"] == pytest.approx(orig["states"][f"rover_{c}"], abs=2e-5), c
+    r = run_cli("info", d / "model.mcap")
+    assert r.exit_code == 0 and "antenna models from r.atx: base none, rover ROVERANT NONE" in r.output, r.output
+    deep = run_cli("info", "--deep", "--json", d / "model.mcap")
+    assert deep.exit_code == 0 and json.loads(deep.output[deep.output.index("{"):])["gnss"]["antennas"]["rover"] == \
+        "ROVERANT NONE", deep.output
+    r = run_cli("estimate", d / "model.mcap", "--init", d / "model.json", "-o", d / "model_states.mcap", "-q", "--json")
+    assert r.exit_code == 0, r.output
+    r = run_cli("export", d / "model_states.mcap", "-o", d / "model.csv", "-q")
+    assert r.exit_code == 0, r.output
+    states = pd.read_csv(d / "model.csv", comment="#")
+    assert len(states) == 301
+    for c in "enu":
+        col = next(k for k in states.columns if k.startswith(f"rover_{c}"))
+        assert states[col].iloc[-1] == pytest.approx(orig["states"][f"rover_{c}"], abs=2e-5), c
+
+
+def test_a_run_s_antenna_problems_are_named_before_anything_is_written(pco_pair, tmp_path):
+    d = pco_pair
+    cfg = _config(d, "ok", d / "rover_pco.obs", True).read_text()
+    cases = (
+        (cfg.replace("ROVERANT NONE", "OTHER NONE"), ("no calibration of", "'OTHER NONE'", "[gnss.antennas.rover] antenna_type")),
+        (cfg.replace('antex = "r.atx"\n', ""), ("gnss.antennas.rover.antenna_type", "no gnss.antex file")),
+        (cfg.replace("ROVERANT NONE", "L1ONLY NONE"), ("antenna L1ONLY NONE", "has no calibration for G:L2",
+                                                       "[gnss] signals")),
+    )
+    for k, (text, words) in enumerate(cases):
+        p = d / f"bad{k}.toml"
+        p.write_text(text)
+        out = tmp_path / f"bad{k}.mcap"
+        r = run_cli("ingest", "--config", p, "-o", out, "-q")
+        flat = " ".join(r.output.split())
+        assert r.exit_code == 2 and "Traceback" not in r.output and not out.exists(), r.output
+        assert all(w in flat for w in words), (words, flat)
+
+
+def test_ingest_says_when_the_antennas_differ_and_no_file_is_given(tmp_path):
+    car = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "geonet-car"
+    if not car.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    r = run_cli("ingest", "--rinex", f"base={car / '3034265G.21O'}", "--rinex", f"car={car / 'SEPT265G.21O'}",
+                "--nav", car / "SEPT2650.21P", "--master", "base", "-o", tmp_path / "car.mcap", "-q", "--json")
+    assert r.exit_code == 0, r.output
+    warn = json.loads(r.output[r.output.index("{"):])["warnings"]
+    assert any(w.startswith("the antennas differ") and "TRM159900.00 SCIS" in w and "JAVRINGANT_DM JVDM" in w
+               and "[gnss] antex" in w for w in warn), warn
