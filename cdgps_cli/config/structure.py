@@ -1020,7 +1020,7 @@ def _toml_str(s: str) -> str:
 def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name: str | None = None,
                      description: str = "", displacement: str = "static", sigma_m_per_sqrt_s=None,
                      positions: dict | None = None, comments=(), options: dict | None = None,
-                     accel_sigma_m_per_s_per_sqrt_s: float | None = None) -> str:
+                     accel_sigma_m_per_s_per_sqrt_s: float | None = None, antenna_types: dict | None = None) -> str:
     """Text of a GNSS run config (the format :func:`parse_gnss_config` reads).
 
     Parameters
@@ -1039,6 +1039,9 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
         Extra ``[gnss]`` keys (mask_deg, ratio, …), written in this order.
     accel_sigma_m_per_s_per_sqrt_s : float, optional
         With ``displacement = "constant_velocity"``: its white acceleration (default: the defaults').
+    antenna_types : dict, optional
+        ``{name: antenna type and radome}`` of the receivers' headers, written as commented ``antenna_type`` keys
+        beside a commented ``[gnss] antex`` (the ANTEX file that would take their calibrations out).
     """
     master = master or next(iter(antennas), None)
     out = [f"# {c}" if c else "#" for c in comments]
@@ -1065,6 +1068,9 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
                                                                    "[" + ", ".join(map(_toml_str, v)) + "]" if isinstance(v, (list, tuple))
                                                                    else repr(float(v)))
         out.append(f"{k} = {val}" + (f"    # {notes[k]}" if k in notes else ""))
+    if antenna_types:
+        out.append('# antex = "igs20.atx"    # receiver antenna calibrations (ANTEX): each antenna\'s phase-centre offset '
+                   'and variations taken out of its observations')
     out += ["", "[gnss.displacement]",
             f"model = {_toml_str(displacement)}    # \"static\", \"random_walk\" or \"constant_velocity\" E/N/U "
             f"displacement of each rover"]
@@ -1088,4 +1094,8 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
         elif kind == "rinex":
             out.append("# position_ecef_m = [x, y, z]    # the antenna's; default: the RINEX header APPROX POSITION XYZ"
                        + (" plus its ANTENNA: DELTA H/E/N" if an == master else ""))
+        typ = (antenna_types or {}).get(an)
+        if typ:
+            out.append(f"# antenna_type = {_toml_str(' '.join(str(typ).split()))}    # its RINEX header's ANT # / TYPE "
+                       f"(with [gnss] antex)")
     return "\n".join(out) + "\n"

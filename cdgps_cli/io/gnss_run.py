@@ -1474,6 +1474,12 @@ def _master_header_comments(found, master: str, comments: list, warnings: list |
         warnings.append(found[0])
 
 
+def _antenna_type(header: dict) -> str | None:
+    """A RINEX header's ``ANT # / TYPE`` worth writing (not a blank or an ``Unknown`` placeholder), or None."""
+    typ = " ".join(str(header.get("antenna_type") or "").split())
+    return typ if typ and typ.lower() not in ("unknown", "ant_type", "none") else None
+
+
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
@@ -1546,7 +1552,8 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,
                             positions=positions or None,
-                            options={"signals": sig} if sig and sig != ["G:L1"] else None)
+                            options={"signals": sig} if sig and sig != ["G:L1"] else None,
+                            antenna_types={n: _antenna_type(rx.header) for n, rx in rinex_rx.items()})
     cfg = parse_gnss_config(text, "<starter config>")         # it must load, and say what was written
     for n, pos in positions.items():
         back = cfg.antenna(n).position_ecef_m

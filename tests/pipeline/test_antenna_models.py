@@ -207,3 +207,25 @@ def test_ingest_says_when_the_antennas_differ_and_no_file_is_given(tmp_path):
     warn = json.loads(r.output[r.output.index("{"):])["warnings"]
     assert any(w.startswith("the antennas differ") and "TRM159900.00 SCIS" in w and "JAVRINGANT_DM JVDM" in w
                and "[gnss] antex" in w for w in warn), warn
+
+
+def test_a_starter_config_names_each_header_s_antenna_for_an_antex_file(tmp_path):
+    """``cdgps config`` writes each RINEX header's antenna type as a commented ``antenna_type`` and a commented
+    ``[gnss] antex``: uncommented as written, the config is one that ``ingest`` takes (a blank or ``Unknown``
+    header writes none)."""
+    car = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "geonet-car"
+    if not car.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    from cdgps_cli.config.structure import parse_gnss_config
+
+    out = tmp_path / "car.toml"
+    r = run_cli("config", "--rinex", f"base={car / '3034265G.21O'}", "--rinex", f"car={car / 'SEPT265G.21O'}",
+                "--rinex", f"ms={MOSAIC_DIR / 'rover.obs'}", "--nav", car / "SEPT2650.21P", "-o", out, "-q")
+    assert r.exit_code == 0, r.output
+    text = out.read_text()
+    assert '# antenna_type = "TRM159900.00 SCIS"' in text and '# antenna_type = "JAVRINGANT_DM JVDM"' in text
+    assert text.count("# antenna_type =") == 2                     # the mosaic rover's header says "Unknown"
+    cfg = parse_gnss_config(text.replace("# antex =", "antex =").replace("# antenna_type =", "antenna_type ="), "x.toml")
+    assert cfg.antex == "igs20.atx"
+    assert {a.name: a.antenna_type for a in cfg.antennas} == {"base": "TRM159900.00 SCIS", "car": "JAVRINGANT_DM JVDM",
+                                                              "ms": None}
