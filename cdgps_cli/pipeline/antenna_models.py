@@ -32,12 +32,12 @@ from cdgps_cli.io.antex import antenna_key, antenna_range_m, find_antenna, read_
 from cdgps_cli.model.gps.orbits import azimuth_elevation, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage
 
-__all__ = ["antenna_models", "mixed_antennas_note", "with_antenna_model", "signals_with_antenna_model",
+__all__ = ["antenna_models", "named_antennas_known", "mixed_antennas_note", "with_antenna_model", "signals_with_antenna_model",
            "obs_with_antenna_model", "station_with_antenna_model", "receiver_with_antenna_model"]
 
 
 def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: list, option: dict,
-                   antex_option: str = "--antex") -> dict:
+                   antex_option: str = "--antex", models: dict | None = None) -> dict:
     """{receiver: :class:`~cdgps_cli.io.antex.AntennaModel` or None} of the ANTEX file ``antex``.
 
     Parameters
@@ -55,6 +55,8 @@ def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: lis
         {receiver: the option or key that names its antenna, for messages (``--rover-antenna``)}.
     antex_option : str
         The option or key that gives the ANTEX file, for messages.
+    models : dict, optional
+        The file's :func:`~cdgps_cli.io.antex.read_antex` when already read (None: read here).
 
     Raises
     ------
@@ -68,7 +70,7 @@ def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: lis
                 raise CdgpsError(f"{option[who]} {name!r}: no {antex_option} file to take its calibration from")
         warnings += mixed_antennas_note(headers, paths, antex_option)
         return dict.fromkeys(named)
-    models = read_antex(antex)
+    models = read_antex(antex) if models is None else models
     out = {}
     for who in named:
         name = named[who] or (headers[who].get("antenna_type") or "")
@@ -86,6 +88,18 @@ def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: lis
             warnings.append(f"{paths[who]} ({who}): {note}")
         out[who] = model
     return out
+
+
+def named_antennas_known(antex, named: dict, option: dict) -> dict:
+    """The ANTEX file's models (:func:`~cdgps_cli.io.antex.read_antex`), once every antenna ``named`` {receiver: type or
+    None} by an option is checked to be in it (CdgpsError as :func:`antenna_models` words it): what can be known of the
+    file before the observations (and their headers) are read."""
+    models = read_antex(antex)
+    for who, name in named.items():
+        if name is not None and name.strip().lower() != "none" and find_antenna(models, name)[0] is None:
+            raise CdgpsError(f"{antex}: no calibration of {who}'s antenna {' '.join(name.split())!r}; give {option[who]} "
+                             f"with a type the file has, or none")
+    return models
 
 
 def mixed_antennas_note(headers: dict, paths: dict, antex_option: str = "--antex") -> list:

@@ -31,7 +31,7 @@ from cdgps_cli.measurement.channels import FIRST, lock_segments, ubx_loss_of_loc
 from cdgps_cli.measurement.epoch_pairing import pair_epochs
 from cdgps_cli.config.options import HEADER_CHECK_EPOCHS, HEADER_POSITION_TOL_M
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m, ephemeris_coverage, spp_spread
-from cdgps_cli.pipeline.antenna_models import antenna_models
+from cdgps_cli.pipeline.antenna_models import antenna_models, named_antennas_known
 
 __all__ = ["ingest_gnss", "run_info", "processing_obs", "signal_obs", "ubx_loss_of_lock", "lock_summary", "starter_gnss_config",
            "spp_master_position"]
@@ -80,12 +80,13 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     """
     say = progress or (lambda m: None)
     why: list[str] = []
+    antex = _antex_checked(cfg)             # the ANTEX file and the antennas the config names: before any reading
     hourly = gnss_hours.hourly_inputs(cfg, out_path, rinex=rinex, ubx=ubx, nav_paths=nav_paths, master=master,
                                       progress=progress, why=why, strict=strict)
     if hourly is not None:
         inp, blocks, mapped = hourly
         try:
-            s = _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say)
+            s = _ingest_hour_by_hour(cfg, out_path, inp, blocks, sensor_paths, say, antex)
             s["reading"] = {"hour_by_hour": True, "blocks": len(blocks), "why_whole": None}
             return s
         except _ChecksRefused as exc:      # the checks the whole reading makes on the same tables: its error
@@ -111,7 +112,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
-    ant_att, ant_inputs = antenna_parts(cfg, inp)
+    ant_att, ant_inputs = antenna_parts(cfg, inp, antex)
     att, extra_inputs, done = _sensor_parts(inp, _sensors(cfg, sensor_paths))
     s = done(gnss_run.write_gnss_run(cfg, out_path, inp, pos_src, common, lock, extra_attachments={**(att or {}), **ant_att} or None,
                                      extra_inputs={**extra_inputs, **ant_inputs}))
@@ -119,7 +120,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
     return s
 
 
-def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, say) -> dict:
+def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, say, antex=None) -> dict:
     """:func:`ingest_gnss` of receivers read block by block (:func:`cdgps_cli.io.gnss_hours.hourly_inputs`): the
     observations written as they are read, the checks made on the thin tables once the last block is in."""
     heap.map_large_blocks(1 << 20)         # each block's arrays unmapped when freed: the blocks' memory does not pile up
@@ -133,7 +134,7 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
                 _check_coverage(inp, cfg.signals)
             pos_src = gnss_run.nominal_positions(cfg, inp)
             common = _common_epochs(cfg, inp)
-            ant_att, _ = antenna_parts(cfg, inp)
+            ant_att, _ = antenna_parts(cfg, inp, antex)
         except CdgpsError as exc:
             raise _ChecksRefused(exc) from None
         lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
@@ -146,18 +147,27 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
     return parts["done"](s)
 
 
-def antenna_parts(cfg: GnssConfig, inp) -> tuple[dict, dict]:
+def _antex_checked(cfg: GnssConfig) -> dict | None:
+    """``[gnss] antex``'s models, read once and checked for every ``antenna_type`` the config names (None: no file)."""
+    if cfg.antex is None:
+        return None
+    return named_antennas_known(cfg.antex, {a.name: a.antenna_type for a in cfg.antennas},
+                                {a.name: f"[gnss.antennas.{a.name}] antenna_type" for a in cfg.antennas})
+
+
+def antenna_parts(cfg: GnssConfig, inp, antex_models: dict | None = None) -> tuple[dict, dict]:
     """(the RUN's attachment of the receivers' antenna calibrations, {name: bytes}; its hashed input, {key: path}) of
     ``[gnss] antex`` (both empty without it): each receiver's model as ``[gnss.antennas.NAME] antenna_type`` or its
     RINEX header names it (:func:`~cdgps_cli.pipeline.antenna_models.antenna_models`; ``init`` and ``estimate`` take
     them out of its observations: :func:`~cdgps_cli.io.gnss_run.read_gnss_run`'s ``antennas``).  Without the key, a
-    warning in ``inp.warnings`` when the headers name antennas of different types."""
+    warning in ``inp.warnings`` when the headers name antennas of different types.  ``antex_models``: the file's
+    models already read (:func:`_antex_checked`)."""
     names = [inp.master, *[n for n in inp.receivers if n != inp.master]]
     named = {n: (cfg.antenna(n).antenna_type if cfg.antenna(n) is not None else None) for n in names}
     headers = {n: inp.receivers[n].header for n in names}
     paths = {n: inp.receivers[n].file for n in names}
     models = antenna_models(cfg.antex, named, headers, paths, inp.warnings,
-                            {n: f"[gnss.antennas.{n}] antenna_type" for n in names}, "[gnss] antex")
+                            {n: f"[gnss.antennas.{n}] antenna_type" for n in names}, "[gnss] antex", antex_models)
     if cfg.antex is None:
         return {}, {}
     for n, m in models.items():
