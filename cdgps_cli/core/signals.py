@@ -3,7 +3,8 @@
 Each signal has a name ``"<system letter>:<slot>"`` (``G:L1``, ``E:E5a`` …), its carrier frequency
 (Hz) and wavelength (m, c / f), and the RINEX 3 phase-type attributes tried in order of preference
 (the code type of the same attribute gives its pseudorange).  RINEX 2 files carry GPS and GLONASS
-``L1``/``L2`` (code ``C1``/``P1``, ``P2``/``C2``).  GLONASS is FDMA: its carrier depends on the satellite's
+``L1``/``L2`` (code ``C1``/``P1``, ``P2``/``C2``: the first the record fills), GPS ``L5`` and, in RINEX 2.11,
+Galileo ``L1``/``L5``/``L7`` (E1, E5a, E5b; codes ``C1``, ``C5``, ``C7``).  GLONASS is FDMA: its carrier depends on the satellite's
 frequency number k (``GLONASS SLOT / FRQ #``), f = f0 + k Δf, so its wavelength is per satellite.
 
 Sources: IS-GPS-200/705, Galileo OS SIS ICD, BeiDou ICD B1I/B2a, GLONASS ICD; RINEX 3.04 Table 4-7.
@@ -33,7 +34,8 @@ class Signal:
     frequency_hz: float
     """Carrier frequency, Hz (GLONASS: f0 at k = 0)."""
     rinex2: tuple = ()
-    """RINEX 2 (phase, code candidates…) types (GPS and GLONASS)."""
+    """RINEX 2 (phase, code candidates…) types (GPS, GLONASS; GPS L5 and Galileo of RINEX 2.11); a record's
+    pseudorange is the first candidate it fills."""
     fdma_step_hz: float = 0.0
     """GLONASS channel spacing Δf, Hz (0 for CDMA)."""
 
@@ -47,10 +49,10 @@ _F0 = 10.23e6
 SIGNALS = {s.name: s for s in (
     Signal("G:L1", "G", "1", "CSLXPWYM", 154 * _F0, ("L1", "C1", "P1")),
     Signal("G:L2", "G", "2", "XLSCWPYDM", 120 * _F0, ("L2", "P2", "C2")),
-    Signal("G:L5", "G", "5", "QIX", 115 * _F0),
-    Signal("E:E1", "E", "1", "CBX", 154 * _F0),
-    Signal("E:E5a", "E", "5", "QIX", 115 * _F0),
-    Signal("E:E5b", "E", "7", "QIX", 118 * _F0),
+    Signal("G:L5", "G", "5", "QIX", 115 * _F0, ("L5", "C5")),
+    Signal("E:E1", "E", "1", "CBX", 154 * _F0, ("L1", "C1")),
+    Signal("E:E5a", "E", "5", "QIX", 115 * _F0, ("L5", "C5")),
+    Signal("E:E5b", "E", "7", "QIX", 118 * _F0, ("L7", "C7")),
     Signal("C:B1I", "C", "2", "IQX", 152.6 * _F0),
     Signal("C:B2I", "C", "7", "IQX", 118 * _F0),
     Signal("C:B2a", "C", "5", "PDX", 115 * _F0),

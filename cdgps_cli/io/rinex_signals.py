@@ -61,13 +61,15 @@ def out_of_order_text(who: str, n_epochs: int, first_s: float) -> str:
 
 
 def _codes(types: list[str], name: str, v3: bool):
-    """(phase type, code type) of signal ``name`` among a system's ``types``, or None."""
+    """(phase type, code type) of signal ``name`` among a system's ``types``, or None; RINEX 2: the code types
+    after the first that ``types`` lists follow (a record's pseudorange is the first of them it fills: GLONASS L2
+    with C2 where a mixed file's P2, listed for GPS, is blank)."""
     sig = signal(name)
     if not v3:
         if not sig.rinex2 or sig.rinex2[0] not in types:
             return None
-        code = next((c for c in sig.rinex2[1:] if c in types), None)
-        return sig.rinex2[0], code
+        codes = [c for c in sig.rinex2[1:] if c in types]
+        return (sig.rinex2[0], *codes) if codes else (sig.rinex2[0], None)
     for a in sig.attributes:
         if f"L{sig.band}{a}" in types:
             code = f"C{sig.band}{a}" if f"C{sig.band}{a}" in types else None
@@ -94,7 +96,8 @@ def _glonass_slots(lines, end, path) -> dict:
 
 
 def _columns(hdr: _ObsHeader, names, path) -> dict:
-    """{signal: (system key, phase index, code index)} for the signals of the request."""
+    """{signal: (system key, phase index, code index, (phase type, code type), further code indices)} for the
+    signals of the request (the further codes: RINEX 2's, a row's pseudorange the first of them it fills)."""
     v3 = hdr.version >= 3
     out = {}
     missing = []
@@ -102,14 +105,15 @@ def _columns(hdr: _ObsHeader, names, path) -> dict:
         sig = signal(name)
         key = sig.system if v3 else "*"
         types = hdr.info["obs_types"].get(key, [])
-        if not v3 and sig.system not in ("G", "R"):
+        if not v3 and not sig.rinex2:
             types = []
         pc = _codes(types, name, v3)
         if pc is None:
             missing.append(f"{name} ({SYSTEM_NAMES[sig.system]}: phase L{sig.band}{'/'.join(sig.attributes)}; "
                            f"the file has {' '.join(types) or 'no ' + SYSTEM_NAMES[sig.system] + ' types'})")
             continue
-        out[name] = (key, types.index(pc[0]), types.index(pc[1]) if pc[1] else -1, pc)
+        out[name] = (key, types.index(pc[0]), types.index(pc[1]) if pc[1] else -1, tuple(pc[:2]),
+                     tuple(types.index(c) for c in pc[2:]))
     if missing:
         raise CdgpsError(f"{path}: signal(s) asked for but absent from the observation types: " + "; ".join(missing))
     return out
@@ -144,18 +148,29 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
     return lines, hdr, end, data
 
 
+_GALILEO_SAT = re.compile(r"E[ 0-9]\d")
+
+
+def _lists_galileo(lines, end: int) -> bool:
+    """Whether a RINEX 2 body names a Galileo satellite: its epoch lines' satellite lists (columns 33–68, and their
+    continuation lines) are the only body fields with letters but event records' comments."""
+    return any(len(ln) > 32 and ln[32:68].strip() and _GALILEO_SAT.search(ln[32:68]) for ln in lines[end + 1:])
+
+
 def signals_in_file(path: str | Path) -> list[str]:
     """The signals of :data:`~cdgps_cli.core.signals.SIGNALS` whose carrier phase the observation
     file's header lists (RINEX 3 ``SYS / # / OBS TYPES``, RINEX 2 ``# / TYPES OF OBSERV``), in the
     table's order."""
-    hdr = _observation_header(path)[1]
+    lines, hdr, end, _ = _observation_header(path)
     v3 = hdr.version >= 3
-    # RINEX 2's types serve every system of the file (read here: GPS and GLONASS): both in a mixed ("M") file, its
-    # own system else (a GPS-only file holds no GLONASS signal)
-    v2_systems = ("G", "R") if hdr.info["satellite_system"] == "M" else (hdr.info["satellite_system"],)
+    # RINEX 2's types serve every system of the file (read here: GPS, GLONASS, Galileo): GPS and GLONASS in a mixed
+    # ("M") file and Galileo when its epochs list a Galileo satellite (RINEX 2.11), its own system else (a GPS-only
+    # file holds no GLONASS signal)
+    v2_systems = (("G", "R") + (("E",) if _lists_galileo(lines, end) else ()) if hdr.info["satellite_system"] == "M"
+                  else (hdr.info["satellite_system"],))
     out = []
     for name, sig in SIGNALS.items():
-        if not v3 and (sig.system not in v2_systems or sig.system not in ("G", "R")):
+        if not v3 and (sig.system not in v2_systems or not sig.rinex2):
             continue
         if _codes(hdr.info["obs_types"].get(sig.system if v3 else "*", []), name, v3) is not None:
             out.append(name)
@@ -169,7 +184,8 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
     Parameters
     ----------
     path : str or Path
-        RINEX 3.0x observation file (any system) or RINEX 2 (GPS and GLONASS L1/L2; GLONASS frequency
+        RINEX 3.0x observation file (any system) or RINEX 2 (GPS and GLONASS L1/L2, GPS L5, RINEX 2.11 Galileo
+        E1/E5a/E5b; GLONASS frequency
         numbers then come from ``glonass_k``, RINEX 2 headers have none).
     signals : sequence of str
         Signal names of :data:`cdgps_cli.core.signals.SIGNALS`.
@@ -378,7 +394,7 @@ def _parse_v3(lines, i, cols, path) -> list:
                                  f"{nsat} of the epoch at line {i + 1} was expected (the epoch announces more "
                                  f"satellites than it holds)")
             _check_satellite(rec[0:3], 3, path, i + 2 + r_off, "at the start of an observation record")
-            for name, (key, ip, ic, _) in cols.items():
+            for name, (key, ip, ic, _, _) in cols.items():
                 if sat[0] != key:
                     continue
                 try:
@@ -419,14 +435,17 @@ def _parse_v2(lines, i, hdr, cols, path) -> list:
             sat = "G" + sat[1:] if sat[0] in "0G" else sat
             rec = "".join(lines[i + k].rstrip("\n").ljust(80) for k in range(per))
             i += per
-            for name, (_, ip, ic, _) in cols.items():
+            for name, (_, ip, ic, _, more) in cols.items():
                 if signal(name).system != sat[0]:
                     continue
                 try:
                     ph, lli = _value(rec, ip, 0)
                     pr = _value(rec, ic, 0)[0] if ic >= 0 else math.nan
+                    for k in more:                          # the next code type the record fills
+                        if math.isnan(pr):
+                            pr = _value(rec, k, 0)[0]
                 except ValueError:
-                    bad = i - per + _bad_field(rec, (ip, ic)) // 5
+                    bad = i - per + _bad_field(rec, (ip, ic, *more)) // 5
                     raise CdgpsError(f"{path}:{bad + 1}: malformed observation record of {sat}: "
                                      f"{lines[bad][:80]!r}") from None
                 if not math.isnan(ph):
@@ -560,13 +579,13 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     sat_obj = np.array(sat_names + [None], dtype=object)[:-1]
     rows_of, lines_of, cols_of, n_of = [], [], [], []
     of_system: dict = {}                                   # the records of each system, found once
-    for name, (key, ip, ic, _) in cols.items():
+    for name, (key, ip, ic, _, more) in cols.items():
         system = key if v3 else signal(name).system
         if system not in of_system:
             of_system[system] = np.array([x[:1] == system for x in sat_names])[sat_code].nonzero()[0]
         rows = of_system[system]
         rows_of.append(rows)
-        for k in (ip, ic):
+        for k in (ip, ic, *more):
             if k >= 0:
                 line, col = _field_place(rec_line[rows], k, v3)
                 lines_of.append(line)
@@ -576,7 +595,7 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
     f = buf.gather(np.concatenate(lines_of), np.array(cols_of, dtype=np.int64).repeat(n_of), 15)
     values, flags = decimal_fields(f[:, :14]), flag_digits(f[:, 14])
     parts, at = [], 0
-    for s_i, (rows, (_, _, ic, _)) in enumerate(zip(rows_of, cols.values())):
+    for s_i, (rows, (_, _, ic, _, more)) in enumerate(zip(rows_of, cols.values())):
         ph, lli = values[at:at + rows.size], flags[at:at + rows.size]
         at += rows.size
         if ic >= 0:
@@ -584,6 +603,9 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
             at += rows.size
         else:
             pr = np.full(rows.size, math.nan)
+        for _k in more:                                   # RINEX 2: the next code type where a record left one blank
+            pr = np.where(np.isnan(pr), values[at:at + rows.size], pr)
+            at += rows.size
         ok = ~np.isnan(ph)
         parts.append((rows[ok], s_i, ph[ok], pr[ok], lli[ok]))
     names = np.array(list(cols), dtype=object)
