@@ -762,7 +762,17 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
         return _ubx_stream([files[i] for i in order], sigs, who, warnings)
     warnings.extend(said + report.warnings)
     tab.attrs = {}
-    return {**reads[order[0]][0], "file_epochs": None}, tab        # (epochs a later file repeats: not counted)
+    return {**reads[order[0]][0], "file_epochs": _joined_file_epochs([h for h, _ in reads], report)}, tab
+
+
+def _joined_file_epochs(headers: list, report) -> int | None:
+    """The observation epochs of consecutive files joined: each file's distinct epochs (``file_epochs``, those
+    without a phase of the signals used too), less the epochs a later file repeats (the join's overlaps, counted
+    once); None when a file's count is not known."""
+    counts = [h.get("file_epochs") for h in headers]
+    if any(c is None for c in counts):
+        return None
+    return int(sum(counts)) - int(sum(o["epochs"] for o in report.overlaps))
 
 
 def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:

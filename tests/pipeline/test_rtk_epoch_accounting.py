@@ -103,3 +103,35 @@ def test_baseline_and_init_count_the_epochs_without_a_double_difference_as_rtk_d
     assert e["n_epochs_common"] == 301 and e["n_epochs_used"] == 291
     assert e["epoch_pairing"]["used"] == 291 and e["epoch_pairing"]["dropped"] == {NO_DD: 10}
     assert f"rover: 10 of 301 paired epochs not used: {NO_DD}" in " ".join(r.output.split())
+
+
+def _split(text: str, at: int, overlap: int) -> tuple[str, str]:
+    """The RINEX 3 text cut into two files of one record: epochs ``0 … at + overlap − 1`` and ``at …`` (the second
+    repeating ``overlap`` epochs of the first), each with the header."""
+    lines = text.splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    head, starts = lines[:i], []
+    while i < len(lines):
+        starts.append(i)
+        i += 1 + int(lines[i][32:35])
+    starts.append(len(lines))
+    first = head + lines[starts[0]:starts[at + overlap]]
+    second = head + lines[starts[at]:]
+    return "\n".join(first) + "\n", "\n".join(second) + "\n"
+
+
+def test_a_rover_in_several_files_counts_its_epochs_without_phase_too(tmp_path):
+    """Found by a sweep of real files: the M8P rover cut into two files that overlap by 5 epochs reported 1201 rover
+    epochs and nothing dropped, where the one file reports 1202 and its code-only epoch (session 30)."""
+    text = _without_system((MOSAIC / "rover.obs").read_text(), "E", {10, 11, 200})
+    parts = _split(text, 150, 5)
+    for k, part in enumerate(parts):
+        (tmp_path / f"rover_{k}.obs").write_text(part)
+    r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", tmp_path / "rover_0.obs", "--rover",
+                tmp_path / "rover_1.obs", "--nav", MOSAIC / "base.nav", "--base-xyz", *BASE_XYZ, "--signals", "E:E1",
+                "-o", tmp_path / "x.csv", "--json")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    ep = out["epoch_pairing"]
+    assert ep["rover_epochs"] == 301 and ep["used"] == 298 and ep["dropped"] == {NO_PHASE: 3}, ep
+    assert any("repeats 5 epoch(s)" in w for w in out["warnings"]), out["warnings"]
