@@ -1020,21 +1020,22 @@ class _Summary:
         self.repeated: list[dict] = []
         self.backwards: list[dict] = []
         self.times: list[float] = []          # (the line-by-line reader's: files the fast one does not take)
+        self.first_line: dict = {}            # each epoch time read → the line of its first record
 
     def epoch_time(self, t: float, lineno: int, hdr: _ObsHeader) -> bool:
-        """Whether the epoch at ``t`` (line ``lineno``) is read: False for one that repeats the previous epoch's time
-        (a logger that wrote it twice: the first record is kept, the repeat noted in ``repeated``).  An epoch earlier
-        than the latest one before it is read and noted in ``backwards`` (the table is sorted by time; a time read
-        twice keeps its first record)."""
+        """Whether the epoch at ``t`` (line ``lineno``) is read: False for one whose time was read before (a logger
+        that wrote it twice, right after it or further on: the first record is kept, the repeat noted in
+        ``repeated``).  An epoch earlier than the latest one before it and not read before is read and noted in
+        ``backwards`` (the table is sorted by time)."""
+        if t in self.first_line:
+            self.repeated.append({"time_gps_s": t, "line": lineno, "first_line": self.first_line[t]})
+            return False
+        self.first_line[t] = lineno
+        self.times.append(t)
         if t < self.last_t:
             self.backwards.append({"time_gps_s": t, "line": lineno, "after_line": self.last_line})
-            self.times.append(t)
             return True
-        if t == self.last_t:
-            self.repeated.append({"time_gps_s": t, "line": lineno, "first_line": self.last_line})
-            return False
         self.last_t, self.last_line = t, lineno
-        self.times.append(t)
         return True
 
     def sat(self, sat: str) -> None:

@@ -301,9 +301,16 @@ def _noting_time_order(df: pd.DataFrame, times) -> pd.DataFrame:
     epochs whose time, in file order ``times``, is earlier than the one before (a file's epochs swapped:
     read in time order, the caller warns), when there are any."""
     t = np.asarray(times, dtype=np.float64)
-    back = np.flatnonzero(np.diff(t) < 0) + 1 if t.size > 1 else np.empty(0, dtype=np.int64)
+    if t.size > 1:
+        # an epoch whose time is below one read before it and was not itself read before (a time written again is a
+        # repeat, :func:`first_of_repeated_epochs`' to say, not an epoch out of order)
+        first = np.zeros(t.size, dtype=bool)
+        first[np.unique(t, return_index=True)[1]] = True
+        back = np.flatnonzero(first[1:] & (t[1:] < np.maximum.accumulate(t)[:-1])) + 1
+    else:
+        back = np.empty(0, dtype=np.int64)
     if back.size:
-        df.attrs["epochs_out_of_order"] = (int(back.size), float(t[back[0]]))
+        df.attrs["epochs_out_of_order"] = (int(np.unique(t[back]).size), float(t[back[0]]))
     return df
 
 

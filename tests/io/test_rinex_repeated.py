@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from cdgps_cli.io.rinex import read_rinex_obs
@@ -81,13 +82,31 @@ def test_two_epochs_swapped_are_read_in_time_order(tmp_path, src):
 
 def test_an_earlier_file_appended_reads_each_time_once(tmp_path):
     """The rover's first 60 epochs written again after the whole file (a logger that appended an older piece): the
-    table is the file's, each time once with its first record; the 60 are listed."""
+    table is the file's, each time once with its first record; the 60 are listed as written more than once, each
+    with the line of its first record (session 30: they were listed as out of time order, and a sweep of real files
+    found ingest then warning that a block written twice was "read in time order")."""
     head, blocks = _epochs((MOSAIC / "rover.obs").read_text())
     p = tmp_path / "appended.obs"
     p.write_text("".join(head) + "".join("".join(b) for b in blocks + blocks[:60]))
     hdr0, obs0 = read_rinex_obs(MOSAIC / "rover.obs")
     hdr, obs = read_rinex_obs(p)
-    assert obs.equals(obs0) and len(hdr["epochs_out_of_order"]) == 60 and hdr["n_epochs"] == hdr0["n_epochs"]
+    assert obs.equals(obs0) and hdr["n_epochs"] == hdr0["n_epochs"] and "epochs_out_of_order" not in hdr
+    rep = hdr["repeated_epochs"]
+    first = len(head) + 1 + np.cumsum([0] + [len(b) for b in blocks[:59]])
+    assert len(rep) == 60 and [r["first_line"] for r in rep] == first.tolist()
+    assert rep[0]["line"] == len(head) + sum(len(b) for b in blocks) + 1
+
+
+def test_a_block_written_again_after_a_later_epoch_is_said_repeated_not_reordered(tmp_path):
+    """Epochs 100–109 written a second time right after 109: ten repeats (the last of them right after its first
+    record, the others after later epochs), no epoch out of time order; the table is the file's."""
+    head, blocks = _epochs((MOSAIC / "rover.obs").read_text())
+    p = tmp_path / "block.obs"
+    p.write_text("".join(head) + "".join("".join(b) for b in blocks[:110] + blocks[100:110] + blocks[110:]))
+    hdr0, obs0 = read_rinex_obs(MOSAIC / "rover.obs")
+    hdr, obs = read_rinex_obs(p)
+    assert obs.equals(obs0) and hdr["n_epochs"] == hdr0["n_epochs"] and "epochs_out_of_order" not in hdr
+    assert [r["time_gps_s"] for r in hdr["repeated_epochs"]] == obs0["time_gps_s"].unique()[100:110].tolist()
 
 
 def _chain(rover, d, tag) -> tuple[str, dict]:
@@ -119,3 +138,18 @@ def test_config_ingest_init_take_a_rover_with_epochs_out_of_place(unedited, tmp_
         said = [ln for ln in stderr.splitlines() if said_as in ln]
         assert len(said) == (tag == "rep") and (tag == "ref" or how == "swap" or f"line {line};" in said[0]), stderr
     assert got["rep"][1]["states"] == got["ref"][1]["states"]
+
+
+def test_rtk_s_reader_says_a_block_written_again_is_repeated_not_out_of_order(tmp_path):
+    """The signal reader (``rtk``'s) on epochs 100–109 written again after 109: ten epochs written more than once
+    and none out of time order (it used to say one was, the jump back to the first repeat)."""
+    head, blocks = _epochs((MOSAIC / "rover.obs").read_text())
+    p = tmp_path / "block.obs"
+    p.write_text("".join(head) + "".join("".join(b) for b in blocks[:110] + blocks[100:110] + blocks[110:]))
+    sig = read_rinex_signals(p, ["G:L1"])[1]
+    assert "epochs_out_of_order" not in sig.attrs
+    kept, times, n_rows = first_of_repeated_epochs(sig)
+    assert times.size == 10 and n_rows > 0 and kept.equals(read_rinex_signals(MOSAIC / "rover.obs", ["G:L1"])[1])
+    swapped = tmp_path / "swap.obs"                       # a true reordering is still said
+    swapped.write_text("".join(head) + "".join("".join(b) for b in blocks[:40] + [blocks[41], blocks[40]] + blocks[42:]))
+    assert read_rinex_signals(swapped, ["G:L1"])[1].attrs["epochs_out_of_order"][0] == 1
