@@ -253,6 +253,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
     join_warnings = [w for n in inp.files for w in join_warnings if w[0] == n]
     inp.warnings[0:0] = [w for _, w in join_warnings] + [w for n, rx in inp.receivers.items()
                                                           for w in g._receiver_warnings(n, inp.files[n][1], rx)]
+    inp.warnings += [w for n, rx in inp.receivers.items() for w in g.empty_epochs_warning(n, inp.files[n][1], rx)]
 
 
 def _joined(parts: list) -> tuple:

@@ -221,6 +221,23 @@ def _raw_from_ubx(obs: pd.DataFrame) -> pd.DataFrame:
     }, copy=False)
 
 
+def empty_epochs_warning(n: str, path, rx: GnssReceiver) -> list[str]:
+    """A RINEX receiver's observation epochs (its header's ``n_epochs``: flags 0 and 1) that hold no row of the run's
+    tables (no satellite at all, or none of the kept systems and signals): not in the run, said with how many (a
+    sweep of real files found an epoch of no satellite dropped unsaid, where ``rtk`` counts it)."""
+    n_file = rx.header.get("n_epochs") if isinstance(rx.header, dict) and rx.format == "rinex" else None
+    if not n_file:
+        return []
+    times = [rx.raw["time_gps_s"].to_numpy(dtype=np.float64)]
+    if rx.signals is not None:
+        times.append(rx.signals["time_gps_s"].to_numpy(dtype=np.float64))
+    held = int(np.unique(np.concatenate(times)).size)
+    if held >= int(n_file):
+        return []
+    return [f"{path} ({n}): {int(n_file) - held} of its {int(n_file)} observation epochs hold no observation of the "
+            f"signals kept (no satellite, or only other systems' or signals'): not in the run"]
+
+
 def _receiver_warnings(n: str, path, rx: GnssReceiver) -> list[str]:
     """What a receiver's file lacks or holds out of place: codes missing (:func:`_missing_code_warning`), epochs
     written twice and epochs out of time order (the RINEX reader's ``repeated_epochs`` / ``epochs_out_of_order``)."""
@@ -593,6 +610,8 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
         _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces)
+    for n, rx in receivers.items():
+        warnings += empty_epochs_warning(n, files[n][1], rx)
     nav, nav_source = _ingest_nav(cfg, nav_list, nav_ahead, receivers, files, pieces, master, say, warnings)
     return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
 

@@ -153,3 +153,21 @@ def test_rtk_s_reader_says_a_block_written_again_is_repeated_not_out_of_order(tm
     swapped = tmp_path / "swap.obs"                       # a true reordering is still said
     swapped.write_text("".join(head) + "".join("".join(b) for b in blocks[:40] + [blocks[41], blocks[40]] + blocks[42:]))
     assert read_rinex_signals(swapped, ["G:L1"])[1].attrs["epochs_out_of_order"][0] == 1
+
+
+def test_ingest_says_how_many_epochs_hold_nothing_it_keeps(tmp_path):
+    """An epoch of no satellite (and one of Galileo alone, in a GPS L1 run) is not in the run, and ``ingest`` now says
+    so with the count (a sweep of real files found it dropped unsaid, where ``rtk`` counts it)."""
+    head, blocks = _epochs((MOSAIC / "rover.obs").read_text())
+    empty = [blocks[50][0][:32] + "  0" + blocks[50][0][35:]]               # epoch 50 emptied: its line alone
+    galileo = [blocks[60][0][:32] + f"{sum(r[0] == 'E' for r in blocks[60][1:]):3d}" + blocks[60][0][35:]] + \
+        [r for r in blocks[60][1:] if r[0] == "E"]
+    p = tmp_path / "rover_empty.obs"
+    p.write_text("".join(head) + "".join("".join(b) for b in blocks[:50] + [empty] + blocks[51:60] + [galileo]
+                                         + blocks[61:]))
+    out = tmp_path / "run.mcap"
+    r = run_cli("ingest", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={p}", "--nav",
+                MOSAIC / "base.nav", "--master", "base", "-o", out, "-q", "--json")
+    assert r.exit_code == 0, r.output
+    warn = json.loads(r.stdout)["warnings"]
+    assert any(w.startswith(f"{p} (rover): 2 of its 301 observation epochs hold no observation") for w in warn), warn
