@@ -1564,6 +1564,12 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         if notes is not None:
             notes.append(f"{master} ({Path(ubx[master]).name}): no RTCM 1005/1006 base position in the log; "
                          f"position_ecef_m is the mean single-point position (metre level), not a surveyed one")
+    if master in rinex_rx and master not in with_pos:
+        said = (f"{rinex[master]}: master {master} has no position (no usable APPROX POSITION XYZ in its header): write "
+                f"its surveyed position_ecef_m in the config before 'cdgps ingest', which refuses a master without one")
+        comments.append(f"    {master} position: NONE — write position_ecef_m below")
+        if warnings is not None:
+            warnings.append(said)
     if master in rinex_rx and master in with_pos and master_header_check is not None:
         _master_header_comments(master_header_check(master, rinex[master], rinex_rx[master], nav_paths), master,
                              comments, warnings)

@@ -86,3 +86,27 @@ def test_config_warns_of_a_header_thousands_of_km_off(tmp_path):
     assert r.exit_code == 0, r.output
     [w] = [w for w in json.loads(r.stdout)["warnings"] if "the master" in w]
     assert " km from its pseudorange single-point position" in w and "CHECK IT" in cfg.read_text()
+
+
+@pytest.mark.parametrize("how", ["no line", "zeros"])
+def test_config_says_a_master_without_a_position_needs_one(tmp_path, how):
+    """A master whose header has no APPROX POSITION XYZ line, or convbin's 0 0 0: `config` wrote the config and said
+    nothing (exit 0), and only `ingest` refused it (a sweep of real files, session 30); it now warns, naming the file
+    and position_ecef_m, and marks the master's comment."""
+    import gzip
+
+    lines = gzip.decompress(BASE.read_bytes()).decode().splitlines(keepends=True)
+    k = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "APPROX POSITION XYZ")
+    if how == "no line":
+        del lines[k]
+    else:
+        lines[k] = f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}{'':18}APPROX POSITION XYZ\n"
+    base = tmp_path / "base.obs"
+    base.write_text("".join(lines))
+    cfg = tmp_path / "cfg.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={base}", "--rinex", f"rover={ROVER}", "--nav", NAV, "--master", "base",
+                "--signals", "G:L1", "-o", cfg, "--json")
+    assert r.exit_code == 0, r.output
+    warn = json.loads(r.stdout)["warnings"]
+    assert any(w.startswith(f"{base}: master base has no position") and "position_ecef_m" in w for w in warn), warn
+    assert "base position: NONE" in cfg.read_text()
