@@ -201,6 +201,79 @@ def _parabolic(f: np.ndarray, y: np.ndarray, i: int) -> float:
     return float(f[i])
 
 
+def _local_floor(f: np.ndarray, p: np.ndarray, f0: float) -> float:
+    """The PSD a peak at ``f0`` stands on: a straight line fitted to log p against log f over the ring around it
+    (a power law: white noise flat, a random walk 1/f²), evaluated at f0; the median where the ring has too few
+    positive bins to fit."""
+    ok = (p > 0) & (f > 0)
+    if ok.sum() < 4:
+        return float(np.median(p))
+    slope, icpt = np.polyfit(np.log(f[ok]), np.log(p[ok]), 1)
+    return float(np.exp(icpt + slope * np.log(f0)))
+
+
+def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dict | None = None, *,
+                   max_per_coordinate: int = 3, min_ratio: float = 10.0) -> list:
+    """The narrow peaks of each coordinate's Welch PSD that stand out of the spectrum around them: a sinusoid's
+    frequency and amplitude, whatever the motion model (a random walk's states have no model modes to look for).
+
+    A peak is a local maximum at least ``min_ratio`` times its local floor (:func:`_local_floor` of the PSD from 3 to
+    12 main-lobe half-widths on either side, the main lobe of the Hann window being ±2 fs/nperseg: a straight line in
+    log–log, so the steep low-frequency slope of a random walk is no peak), above 2 half-widths from 0 Hz.  Its frequency is the maximum refined by a parabola through log PSD; its amplitude, sqrt(2 P), P the power
+    above the floor over ±1.25 main-lobe half-widths (the one-sided PSD integrates to a sinusoid's A²/2, however the
+    FFT is zero-padded).  At most ``max_per_coordinate`` per coordinate, the strongest first, none within two
+    half-widths of a stronger one.
+
+    Parameters
+    ----------
+    f : ndarray (F,)
+        Frequencies, Hz, evenly spaced from 0.
+    psd : dict
+        {coordinate: PSD (F,), unit² / Hz}.
+    fs : float
+        Sample rate, Hz.
+    nperseg : int
+        Welch segment length, samples.
+    units : dict, optional
+        {coordinate: unit of its values} (``m``, ``rad``), echoed.
+
+    Returns
+    -------
+    list of dict
+        ``coordinate``, ``frequency_hz``, ``amplitude`` (the coordinate's unit), ``unit``, ``psd_peak``,
+        ``psd_floor`` (unit²/Hz) and ``ratio`` (peak / floor), by coordinate then strength.
+    """
+    f = np.asarray(f, dtype=float)
+    df = float(f[1] - f[0]) if f.size > 1 else 0.0
+    half = 2.0 * fs / nperseg                                   # Hann main-lobe half-width, Hz
+    out = []
+    for name, p in psd.items():
+        p = np.asarray(p, dtype=float)
+        inner = (p[1:-1] >= p[:-2]) & (p[1:-1] > p[2:])
+        cand = np.flatnonzero(inner) + 1
+        cand = cand[f[cand] >= 2 * half]
+        found = []
+        for i in cand[np.argsort(-p[cand], kind="stable")]:
+            if len(found) >= max_per_coordinate:
+                break
+            if any(abs(f[i] - g["frequency_hz"]) < 2 * half for g in found):
+                continue
+            dist = np.abs(f - f[i])
+            ring = (dist >= 3 * half) & (dist <= 12 * half) & (f > 0)
+            if not ring.any():
+                continue
+            floor = _local_floor(f[ring], p[ring], float(f[i]))
+            if not (floor > 0 and p[i] >= min_ratio * floor):
+                continue
+            lobe = dist <= 1.25 * half
+            power = float(np.sum(np.maximum(p[lobe] - floor, 0.0)) * df)
+            found.append({"coordinate": name, "frequency_hz": _parabolic(f, p, int(i)),
+                          "amplitude": float(np.sqrt(2.0 * power)), "unit": (units or {}).get(name),
+                          "psd_peak": float(p[i]), "psd_floor": floor, "ratio": float(p[i] / floor)})
+        out += found
+    return out
+
+
 def _half_power_damping(f: np.ndarray, y: np.ndarray, i: int) -> tuple[float | None, float]:
     """ζ from the half-power bandwidth of peak i of y; returns (ζ, bandwidth_hz)."""
     half = y[i] / 2.0
@@ -777,10 +850,13 @@ def _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, st
              for j in range(len(cfg.mode_names)) if cfg.mode_frequency_hz[j] > 0]
     fmax = min(opt.fmax_hz or fs / 2, fs / 2)
     keep = (f > 0) & (f <= fmax)
+    coords = [names[i] for i in sel]
+    peaks = [pk for pk in spectral_peaks(f, {c: psd[f"gps_{c}"] for c in coords}, fs, nperseg,
+                                         {c: cfg.coord_unit(c) for c in coords}) if pk["frequency_hz"] <= fmax]
     return {
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},
         "fdd_sv": S_sv[keep, : min(3, S_sv.shape[1])],
-        "modes": modes,
+        "modes": modes, "peaks": peaks,
         "fdd_shapes": fdd_shapes(cfg, opt, f, U_sv, S_sv, Um, std, [names[i] for i in sel]),
         "settings": {**opt.echo(), "sample_rate_hz": fs, "duration_s": N * T, "segment_s": nperseg / fs,
                      "segments": int((N - nperseg) // max(int(round(nperseg * (1 - opt.overlap))), 1) + 1),

@@ -715,14 +715,15 @@ _spectra_opts = [
 ]
 
 
-@main.command(short_help="PSDs vs gyros, FDD modes → psd.csv, peaks.json")
+@main.command(short_help="PSDs, FDD modes, peaks → psd.csv, peaks.json")
 @click.argument("states_mcap", type=click.Path(dir_okay=False))
 @_with(_spectra_opts)
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False), help="Output directory.")
 @click.option("--json", "as_json", is_flag=True, help="Print peaks.json on stdout.")
 @click.pass_context
 def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_dir, as_json):
-    """Welch PSDs vs gyros, FDD modal identification → psd.csv, peaks.json, psd.png, fdd.png."""
+    """Welch PSDs vs gyros, FDD modal identification, each coordinate's spectral peaks (frequency, amplitude) →
+    psd.csv, peaks.json, psd.png, fdd.png."""
     from cdgps_cli.report.sensor_reports import run_spectra
     st, run = _states_and_gyro(states_mcap, gyro_mcap, chunked=True)
     with progress.stage("spectra, mode fits and figures"):
@@ -737,8 +738,12 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
         g = "–" if m["gps_hz"] is None else f"{m['gps_hz']:.4f}"
         e = "" if m["error_pct"] is None else f" ({m['error_pct']:+.2f}%)"
         _say(ctx, f"  {m['mode']:<12} model {m['model_hz']:.4f} Hz  GPS {g} Hz{e}  {'seen' if m['seen'] else 'not seen'}")
+    for p in s["peaks"]:
+        amp = f"{p['amplitude'] * 1e3:.2f} mm" if p["unit"] == "m" else f"{p['amplitude']:.3g} {p['unit'] or ''}"
+        _say(ctx, f"  peak {p['coordinate']:<12} {p['frequency_hz']:.4f} Hz  amplitude {amp}  ({p['ratio']:.0f} × its "
+                  f"floor)")
     if as_json:
-        _emit_json({"modes": s["modes"], "settings": s["settings"]})
+        _emit_json({"modes": s["modes"], "peaks": s["peaks"], "settings": s["settings"]})
 
 
 @main.group(short_help="Sensor-test reports (markdown, JSON, HTML)")

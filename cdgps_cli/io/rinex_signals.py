@@ -105,8 +105,8 @@ def _columns(hdr: _ObsHeader, names, path) -> dict:
         sig = signal(name)
         key = sig.system if v3 else "*"
         types = hdr.info["obs_types"].get(key, [])
-        if not v3 and not sig.rinex2:
-            types = []
+        if not v3 and (not sig.rinex2 or (sig.system == "E" and hdr.info["satellite_system"] not in ("M", "E"))):
+            types = []                         # (RINEX 2.11 Galileo: in a mixed or a Galileo file only)
         pc = _codes(types, name, v3)
         if pc is None:
             missing.append(f"{name} ({SYSTEM_NAMES[sig.system]}: phase L{sig.band}{'/'.join(sig.attributes)}; "

@@ -187,7 +187,8 @@ def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
         df[f"fdd_singular_value_{i + 1}_1_hz"] = res["fdd_sv"][:, i]      # of the standardized CSD
     _atomic_bytes(dest.path("psd.csv"), float_csv(df, "%.7g").encode())
     fusion = fusion_note(states)
-    peaks = _json_clean({"modes": res["modes"], "settings": res["settings"], "states": str(states.path),
+    peaks = _json_clean({"modes": res["modes"], "peaks": res.get("peaks", []), "settings": res["settings"],
+                         "states": str(states.path),
                          "config": cfg.name, "config_sha256": cfg.sha256, "gyros": gnames,
                          **({"fusion": fusion} if fusion else {})})
     _atomic_bytes(dest.path("peaks.json"), (json.dumps(peaks, indent=2) + "\n").encode())
@@ -197,7 +198,7 @@ def _write_spectra(states, res: dict, gnames: list, dest: OutputSet) -> dict:
         pngs[name] = _save_fig(fig, dest.path(name))
         plt.close(fig)
     return {"out_dir": str(dest.out), "files": ["psd.csv", "peaks.json", *pngs], "modes": peaks["modes"],
-            "settings": peaks["settings"], "pngs": pngs, "gyros": gnames, **({"fusion": fusion} if fusion else {})}
+            "peaks": peaks["peaks"], "settings": peaks["settings"], "pngs": pngs, "gyros": gnames, **({"fusion": fusion} if fusion else {})}
 
 
 def fusion_note(states) -> dict | None:
