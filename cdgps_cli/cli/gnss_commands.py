@@ -71,6 +71,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     if rinex:
         stations = _parse_named_files(rinex, "--rinex", "NAME")
         origins = {k: v for k, v in origins.items() if k != "rinex"}     # named by --rinex, not the job
+        types = {}                                  # the job's antenna types name its stations, not these
     if nav:
         navs = list(nav)
         origins = {k: v for k, v in origins.items() if k != "nav"}

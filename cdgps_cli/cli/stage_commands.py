@@ -943,8 +943,8 @@ def _gnss_info_lines(g: dict) -> list:
                + (f", toe {toe[0]} – {toe[1]}" if toe else " (none: ingest with --nav before 'cdgps init')"))
     ant = g.get("antennas")
     if ant:
-        out.append(f"    antenna models from {ant['antex']}: " + ", ".join(f"{n} {v or 'none'}" for n, v in ant.items()
-                                                                           if n != "antex"))
+        out.append(f"    antenna models from {ant['antex']}: " + ", ".join(f"{n} {v or 'none'}"
+                                                                           for n, v in ant["receivers"].items()))
     return out
 
 

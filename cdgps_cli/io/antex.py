@@ -26,7 +26,7 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError
 
 __all__ = ["AntennaModel", "read_antex", "antenna_key", "find_antenna", "antenna_range_m", "ANTEX_FREQUENCIES",
-           "model_to_json", "model_from_json"]
+           "model_to_json", "model_from_json", "header_antenna_type"]
 
 #: the ANTEX frequency codes of a signal, first the signal's own, then those RTKLIB-like fallbacks take (a file with
 #: GPS calibrations alone serves the other systems' bands nearest in frequency)
@@ -53,6 +53,13 @@ class AntennaModel:
     def frequency(self, signal_name: str) -> str | None:
         """The frequency of this model that serves ``signal_name`` (:data:`ANTEX_FREQUENCIES`), or None."""
         return next((f for f in ANTEX_FREQUENCIES.get(signal_name, ()) if f in self.offsets_neu_mm), None)
+
+
+def header_antenna_type(header: dict) -> str | None:
+    """A RINEX header's ``ANT # / TYPE`` as an antenna name, or None for a blank or a placeholder (``Unknown``,
+    convbin's empty field, Spirent's ``ant_type``): such a receiver names no antenna."""
+    typ = " ".join(str(header.get("antenna_type") or "").split())
+    return typ if typ and typ.split()[0].lower() not in ("unknown", "ant_type", "none") else None
 
 
 def antenna_key(text: str) -> tuple[str, str]:
@@ -212,8 +219,9 @@ def antenna_range_m(model: AntennaModel, signals, az_rad, el_rad) -> np.ndarray:
 
 
 def model_to_json(model: AntennaModel) -> dict:
-    """``model`` as JSON values (a RUN keeps the calibrations it was ingested with: :func:`model_from_json`)."""
-    return {"name": model.name, "source": str(model.source), "zenith_deg": [float(z) for z in model.zenith_deg],
+    """``model`` as JSON values (a RUN keeps the calibrations it was ingested with: :func:`model_from_json`); its
+    source file by name only (no machine's path: the same inputs give the same RUN from any directory)."""
+    return {"name": model.name, "source": Path(str(model.source)).name, "zenith_deg": [float(z) for z in model.zenith_deg],
             "offsets_neu_mm": {f: [float(x) for x in v] for f, v in model.offsets_neu_mm.items()},
             "variations_mm": {f: [float(x) for x in v] for f, v in model.variations_mm.items()}}
 

@@ -53,7 +53,7 @@ from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_sc
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
-from cdgps_cli.io.antex import model_from_json, model_to_json
+from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
@@ -1392,9 +1392,10 @@ def gnss_run_info(path: str | Path, contents, common_epochs=None, lock_summary=N
 
 
 def antennas_info(antex, models: dict) -> dict:
-    """What ``info``, INIT and STATES say of a run's antenna calibrations: the ANTEX file as the config named it and
-    each receiver's antenna type and radome as that file writes them (None: no model)."""
-    return {"antex": str(antex), **{n: None if m is None else " ".join(m.name.split()) for n, m in models.items()}}
+    """What ``info``, INIT, STATES and ``baseline`` say of the antenna calibrations used: ``antex`` the ANTEX file
+    and ``receivers`` {receiver: its antenna type and radome as that file writes them, None: no model}."""
+    return {"antex": str(antex), "receivers": {n: None if m is None else " ".join(m.name.split())
+                                               for n, m in models.items()}}
 
 
 def gnss_info(cfg: GnssConfig, master: str, receivers: dict, nav, pairing: dict | None, locks: dict,
@@ -1493,10 +1494,6 @@ def _master_header_comments(found, master: str, comments: list, warnings: list |
         warnings.append(found[0])
 
 
-def _antenna_type(header: dict) -> str | None:
-    """A RINEX header's ``ANT # / TYPE`` worth writing (not a blank or an ``Unknown`` placeholder), or None."""
-    typ = " ".join(str(header.get("antenna_type") or "").split())
-    return typ if typ and typ.lower() not in ("unknown", "ant_type", "none") else None
 
 
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
@@ -1578,7 +1575,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,
                             positions=positions or None,
                             options={"signals": sig} if sig and sig != ["G:L1"] else None,
-                            antenna_types={n: _antenna_type(rx.header) for n, rx in rinex_rx.items()})
+                            antenna_types={n: header_antenna_type(rx.header) for n, rx in rinex_rx.items()})
     cfg = parse_gnss_config(text, "<starter config>")         # it must load, and say what was written
     for n, pos in positions.items():
         back = cfg.antenna(n).position_ecef_m

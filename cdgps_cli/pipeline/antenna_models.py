@@ -28,7 +28,7 @@ import pandas as pd
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.io.antex import antenna_key, antenna_range_m, find_antenna, read_antex
+from cdgps_cli.io.antex import antenna_key, antenna_range_m, find_antenna, header_antenna_type, read_antex
 from cdgps_cli.model.gps.orbits import azimuth_elevation, ephemeris_rows, sat_position_rows
 from cdgps_cli.model.gps.positioning import ephemeris_coverage
 
@@ -73,7 +73,7 @@ def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: lis
     models = read_antex(antex) if models is None else models
     out = {}
     for who in named:
-        name = named[who] or (headers[who].get("antenna_type") or "")
+        name = named[who] or header_antenna_type(headers[who]) or ""
         if name.strip().lower() == "none":
             out[who] = None
             continue
@@ -108,7 +108,7 @@ def mixed_antennas_note(headers: dict, paths: dict, antex_option: str = "--antex
     differ by centimetres between types (on the real 164 km DELF → EIJS pair, 66 mm in height, and a wrong fix).
     ``headers`` and ``paths`` in receiver order, the first the base (master); ``antex_option`` names the option
     or key that would give the file."""
-    names = {who: (h.get("antenna_type") or "").strip() for who, h in headers.items()}
+    names = {who: header_antenna_type(h) or "" for who, h in headers.items()}
     if not all(names.values()) or len({antenna_key(n) for n in names.values()}) < 2:
         return []
     listed = "; ".join(f"{paths[w]} ({w}): {' '.join(n.split())}" for w, n in names.items())
@@ -142,12 +142,22 @@ def _range_at_tags(model, nav: pd.DataFrame, xyz, time_s, sats, signals) -> np.n
     t = np.asarray(time_s, dtype=np.float64)
     sats = np.asarray(sats, dtype=object)
     d = np.zeros(t.size)
-    ok = ephemeris_coverage(nav, sats, t) if t.size else np.zeros(0, dtype=bool)
+    if not t.size:
+        return d
+    # each (time, satellite) once: a receiver's signals share its satellites' directions
+    names, code = np.unique(sats.astype(str), return_inverse=True)
+    pair, first, back = np.unique(np.column_stack([t.view(np.int64), code.astype(np.int64)]), axis=0,
+                                  return_index=True, return_inverse=True)
+    back = back.ravel()
+    tu, su = t[first], sats[first]
+    ok = ephemeris_coverage(nav, su, tu)
     if ok.any():
-        xyz_sat, _ = sat_position_rows(ephemeris_rows(nav, sats[ok], t[ok]), t[ok])
-        az, el = azimuth_elevation(np.asarray(xyz, float), xyz_sat)
-        d[ok] = antenna_range_m(model, np.asarray(signals, dtype=object)[ok] if np.ndim(signals) else
-                                np.full(int(ok.sum()), signals, dtype=object), az, el)
+        xyz_sat, _ = sat_position_rows(ephemeris_rows(nav, su[ok], tu[ok]), tu[ok])
+        az_u, el_u = np.zeros(tu.size), np.zeros(tu.size)
+        az_u[ok], el_u[ok] = azimuth_elevation(np.asarray(xyz, float), xyz_sat)
+        rows = ok[back]
+        sig = np.asarray(signals, dtype=object)[rows] if np.ndim(signals) else np.full(int(rows.sum()), signals, dtype=object)
+        d[rows] = antenna_range_m(model, sig, az_u[back][rows], el_u[back][rows])
     return d
 
 
@@ -185,10 +195,10 @@ def station_with_antenna_model(st, nav: pd.DataFrame, xyz, model):
                        signals=signals_with_antenna_model(st.signals, nav, xyz, model))
 
 
-def receiver_with_antenna_model(rx, nav: pd.DataFrame, xyz, model):
-    """A RUN's :class:`~cdgps_cli.io.gnss_run.GnssReceiver` with ``model`` taken out of its raw (GPS L1) table and
-    its signals (None: the receiver itself)."""
+def receiver_with_antenna_model(rx, nav: pd.DataFrame, xyz, model, *, raw: bool = True):
+    """A RUN's :class:`~cdgps_cli.io.gnss_run.GnssReceiver` with ``model`` taken out of its signals and, with
+    ``raw``, its raw (GPS L1) table (None: the receiver itself)."""
     if model is None:
         return rx
-    return replace(rx, raw=obs_with_antenna_model(rx.raw, nav, xyz, model, phase="phase_cycles", code="pseudorange_m"),
-                   signals=signals_with_antenna_model(rx.signals, nav, xyz, model))
+    return replace(rx, raw=obs_with_antenna_model(rx.raw, nav, xyz, model, phase="phase_cycles", code="pseudorange_m")
+                   if raw else rx.raw, signals=signals_with_antenna_model(rx.signals, nav, xyz, model))

@@ -544,6 +544,11 @@ def stage_inputs(s: Session, stage: str) -> dict:
         cfg = load_gnss_config(s.inputs["gnss_config"])          # the receiver and navigation files it lists
         files = {f"{a.name}": a.rinex or a.ubx for a in cfg.antennas if a.rinex or a.ubx}
         files.update({f"nav{i}": str(n) for i, n in enumerate(cfg.nav)})
+        if cfg.antex:                                            # the antenna calibrations the RUN keeps
+            files["antex"] = cfg.antex
+        from cdgps_cli.pipeline.gnss_ingest import config_sensor_paths  # noqa: PLC0415
+
+        files.update({f"sensor{i}": p for i, p in enumerate(config_sensor_paths(cfg))})    # the sensor logs it attaches
         return {"gnss_config": s.inputs["gnss_config"], **files}
     if stage == "ingest":
         return {k: s.inputs[k] for k in ("receiver_csv", "gyro_csv", "actuator_csv", "config") if k in s.inputs}

@@ -86,13 +86,27 @@ def _stations(run: GnssRun, notes: dict | None = None):
                          f"needs at least one rover receiver (ingest two or more --rinex/--ubx files)")
     sigs = tuple(run.cfg.signals)
     stations = {}
-    for n, rx in run.receivers.items():
-        rx = receiver_with_antenna_model(rx, run.nav, _antenna_xyz(run, n), run.antennas.get(n))
+    for n in run.receivers:
+        rx = run_receiver(run, n)
         table, said = without_unlocked_channels(signal_obs(rx) if sigs else None, f"{rx.file} ({n})")
         if notes is not None:
             notes[n] = said
         stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), table)
     return stations
+
+
+def run_receiver(run: GnssRun, name: str):
+    """Receiver ``name`` of the run as every solver takes it: with its antenna calibration (``run.antennas``, from
+    ``[gnss] antex`` at ingest) taken out of its signals, and out of its GPS L1 table where that table anchors the
+    epochs (:func:`~cdgps_cli.core.signals.anchor_signal`); the receiver itself without a calibration.  The one
+    place ``init``, ``estimate`` and ``estimate --structure`` (GPS L1 and signals alike) get their receivers."""
+    from cdgps_cli.core.signals import anchor_signal  # noqa: PLC0415
+
+    model = run.antennas.get(name)
+    if model is None:
+        return run.receivers[name]
+    return receiver_with_antenna_model(run.receivers[name], run.nav, _antenna_xyz(run, name), model,
+                                       raw=anchor_signal(run.cfg.signals) is None)
 
 
 def _antenna_xyz(run: GnssRun, name: str) -> np.ndarray | None:

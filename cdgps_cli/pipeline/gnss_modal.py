@@ -58,6 +58,7 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli import __version__
 from cdgps_cli.config.structure import StructureConfig
 from cdgps_cli.io.coordinate_columns import coordinate_columns
+from cdgps_cli.io.gnss_run import antennas_info
 from cdgps_cli.config.options import (ESTIMATE_CHUNK_EPOCHS, MODAL_INIT_CODE_DD, MODAL_INITIAL_SIGMA_XI, MODAL_INITIAL_SIGMA_XIDOT,
                                       SCENE_EXAGGERATION, SCENE_SKY_STEP_S, SIM_MASTER_ECEF_M, X_AXIS_AZIMUTH_DEG)
 
@@ -575,13 +576,13 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say, ini
     each)."""
     from cdgps_cli.estimation.rtk_multi import receiver_geometry  # noqa: PLC0415
     from cdgps_cli.measurement.dd_signals import signal_sd_table  # noqa: PLC0415
-    from cdgps_cli.pipeline.gnss import _position_args  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss import _position_args, run_receiver  # noqa: PLC0415
     from cdgps_cli.pipeline.gnss_ingest import signal_obs  # noqa: PLC0415   (UBX: slips from lock times)
 
     c = run.cfg
     if any(g.startswith("R:") for g in c.signals):
         raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo, BeiDou); GLONASS (FDMA) is not supported")
-    geo_m = receiver_geometry(signal_obs(run.receivers[run.master]), run.nav, xm)
+    geo_m = receiver_geometry(signal_obs(run_receiver(run, run.master)), run.nav, xm)
     tabs, slot_ants = [], []
     for a in rover_ants:
         r = mapping[a]
@@ -592,7 +593,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say, ini
                 raise CdgpsError(f"{run.path}: rover {r} has no nominal position (RINEX header or config); the signal path needs one")
             xr0 = np.asarray(h, dtype=float)
         say(f"{run.master} → {r}: single differences of {', '.join(c.signals)} …")
-        geo_r = receiver_geometry(signal_obs(run.receivers[r]), run.nav, xr0)
+        geo_r = receiver_geometry(signal_obs(run_receiver(run, r)), run.nav, xr0)
         for g in c.signals:
             d = signal_sd_table(geo_m[geo_m["signal"] == g], geo_r[geo_r["signal"] == g], xm, xr0,
                                 mask_rad=math.radians(c.mask_deg), max_gap_s=c.max_gap_s, troposphere=c.troposphere,
@@ -721,6 +722,7 @@ def gnss_modal_estimate(run, init: dict, init_text: str, cfg: StructureConfig, o
                **({"batch_init_window_s": float(init_window_s)} if batch_init else {"batch_init": False}),
                "dd_covariance": "D Σ Dᵀ jointly over the rovers (common master)", "outlier_sigma": gate,
                **_signal_options(tabs), **({"fusion": fusion.summary} if fusion is not None else {}),
+               **({"antennas": antennas_info(run.antex, run.antennas)} if run.antex is not None else {}),
                **(extra_options or {})}
     say(f"writing {out_path} …")
     out = write_states(res, run.path, init, init_text, out_path, options, scene_exaggeration=scene_exaggeration,

@@ -272,3 +272,40 @@ def test_a_slip_no_receiver_flagged_is_cut_where_init_cut_it(tmp_path):
     r = run_cli("-q", "estimate", tmp_path / "slip" / "run.mcap", "--init", tmp_path / "moved.json", "--structure",
                 TOWER, "-o", tmp_path / "moved.mcap")
     assert r.exit_code == 2 and "first_s = nan" in r.output and not (tmp_path / "moved.mcap").exists(), r.output
+
+
+def test_the_signal_tables_take_the_run_s_antenna_calibrations(multi, tmp_path):
+    """``[gnss] antex`` on a multi-signal structure run: the modal set-up's SD tables of the calibrated rover move by
+    its correction, the other rover's do not (a review of session 30 found these tables built from the receivers as
+    ingested, the models left out: the states bit for bit those without the file)."""
+    from tests.io.test_antex import antenna_block, write_antex
+
+    src, *_ = multi
+    run0 = read_gnss_run(src / "run.mcap")
+    rover = run0.rovers[0]
+    write_antex(tmp_path / "r.atx", [antenna_block("ROVERANT        NONE",
+                                                   {f: ((0.0, 0.0, 100.0), np.zeros(19)) for f in ("G01", "G02")})])
+    lines = (src / "config.toml").read_text().splitlines()
+    lines.insert(lines.index("[gnss]") + 1, 'antex = "r.atx"')
+    for n in run0.receivers:                       # its calibration for one rover, none for the others
+        lines.insert(lines.index(f'[gnss.antennas."{n}"]') + 1,
+                     f'antenna_type = "{"ROVERANT NONE" if n == rover else "none"}"')
+    (tmp_path / "config.toml").write_text("\n".join(lines) + "\n")
+    for p in src.iterdir():
+        if p.suffix == ".rnx":
+            (tmp_path / p.name).write_bytes(p.read_bytes())
+    r = run_cli("-q", "ingest", "--config", tmp_path / "config.toml", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    run1 = read_gnss_run(tmp_path / "run.mcap")
+    assert run1.antennas[rover] is not None and all(run1.antennas[n] is None for n in run1.receivers if n != rover)
+    cfg = load_config(TOWER)
+    init = json.loads((src / "init.json").read_text())
+    setups = [_modal_setup(run, dict(init, config_sha256=run.cfg.sha256), cfg, None, 90.0, lambda m: None)
+              for run in (run0, run1)]
+    moved = {}
+    for ant, a, b in zip(setups[0].slot_ants, setups[0].tabs, setups[1].tabs):
+        assert a["signal"] == b["signal"] and np.array_equal(a["d"].t_label, b["d"].t_label)
+        moved.setdefault(setups[0].mapping[ant], []).append(np.abs(b["d"].r_raw_m - a["d"].r_raw_m))
+    got = np.concatenate(moved.pop(rover))         # G and E rows alike (E1, E5a served by G01, G02 as RTKLIB does)
+    assert got.max() <= 0.1 + 1e-9 and np.count_nonzero(got > 0.02) > got.size // 2, (got.min(), got.max())
+    assert all(np.all(x == 0.0) for xs in moved.values() for x in xs)       # the other rover's tables as ingested

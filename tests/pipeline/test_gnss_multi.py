@@ -268,12 +268,36 @@ def test_rtk_warns_of_epochs_out_of_time_order(tmp_path):
                for w in s["warnings"]), s["warnings"]
 
 
+def _without_c2(src, dest):
+    """The RINEX 2.11 file ``src`` (types C1 C2 C8 L1 L2 L8 P2, two lines a record) with every C2 blanked: its L2
+    phases whose record fills C2 and not P2 are then left without a code of their own."""
+    lines = src.read_text().splitlines(keepends=True)
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    i = end
+    while i < len(lines):
+        flag, nsat = int(lines[i][26:29]), int(lines[i][29:32])
+        if flag > 1:                                       # an event record: its lines as they are
+            i += 1 + nsat
+            continue
+        i += 1 + (nsat - 1) // 12
+        for _ in range(nsat):
+            rec = lines[i].rstrip("\r\n").ljust(80)
+            lines[i] = (rec[:16] + " " * 16 + rec[32:]).rstrip() + "\r\n"
+            i += 2
+    dest.write_bytes("".join(lines).encode())
+    return dest
+
+
 def test_rtk_names_phase_observations_without_their_own_pseudorange(tmp_path):
-    # L2 phase without an L2 code of its own was dropped by receiver_geometry without a word
+    # L2 phase without an L2 code of its own was dropped by receiver_geometry without a word.  The real file's L2
+    # records fill C2 where P2 is blank, which the reader now takes (session 30): its C2 blanked here
     data = REPO_ROOT / "tests" / "data"
-    obs = data / "14601736.18o"
-    s = rtk_from_files(obs, obs, [data / "14601736.18n"], tmp_path / "z.csv", options={"signals": ("G:L1", "G:L2")})
     from cdgps_cli.io.rinex_signals import read_rinex_signals
+
+    _, as_is = read_rinex_signals(data / "14601736.18o", ["G:L2"])
+    assert as_is["pseudorange_m"].notna().all()              # every L2 phase with a code of its own (P2 or C2)
+    obs = _without_c2(data / "14601736.18o", tmp_path / "no_c2.18o")
+    s = rtk_from_files(obs, obs, [data / "14601736.18n"], tmp_path / "z.csv", options={"signals": ("G:L1", "G:L2")})
 
     _, df = read_rinex_signals(obs, ["G:L1", "G:L2"])
     n = int((~np.isfinite(df["pseudorange_m"].to_numpy()) & (df["signal"] == "G:L2").to_numpy()).sum())
