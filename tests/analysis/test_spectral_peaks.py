@@ -60,3 +60,35 @@ def test_two_sinusoids_are_two_peaks_strongest_first():
     got = spectral_peaks(f, {"u": p}, 2.0, 1200)
     assert [round(g["frequency_hz"], 2) for g in got[:2]] == [0.11, 0.31]
     assert got[0]["amplitude"] == pytest.approx(4e-3, rel=0.03) and got[1]["amplitude"] == pytest.approx(2e-3, rel=0.03)
+
+
+def _chunks(t, x, size):
+    return iter([(t[a:a + size], x[a:a + size, None]) for a in range(0, t.size, size)])
+
+
+def test_the_sine_fit_is_the_whole_record_s_least_squares_for_any_chunking():
+    """:func:`peak_sine_fits`: the same bits however the record is cut; the fitted sinusoid is numpy's least squares
+    of the same model (an independent solve; there on a record that also drifts as a random walk); on a five-minute
+    record of a 3 mm, 0.2 Hz sine in 1 mm of white noise the amplitude errors over 200 seeds are their own σ (z-scores
+    of unit spread), where the PSD's main lobe scatters ±15 %."""
+    from cdgps_cli.analysis.spectra import peak_sine_fits
+
+    fs, n, f0, amp = 1.0, 301, 0.2, 3e-3
+    t = 1.4e9 + np.arange(n) / fs
+    z = []
+    for seed in range(200):
+        x = _series(n, fs, amp, f0, 1e-3, seed, walk=2e-4 if seed == 0 else 0.0)
+        peak = [{"coordinate": "x", "frequency_hz": f0, "amplitude": np.nan}]
+        got = [peak_sine_fits(_chunks(t, x, size), peak, ["x"], n / fs)[0] for size in (n, 7, 64)]
+        assert got[0] == got[1] == got[2] or all(np.isnan(g["amplitude_psd"]) for g in got)
+        g = got[0]
+        if seed == 0:
+            dt = t - t[0]
+            A = np.column_stack([np.ones(n), dt / (n / fs), np.cos(2 * np.pi * f0 * dt), np.sin(2 * np.pi * f0 * dt)])
+            coef = np.linalg.lstsq(A, x, rcond=None)[0]
+            assert g["amplitude"] == pytest.approx(np.hypot(coef[2], coef[3]), rel=1e-9)
+            assert g["phase_rad"] == pytest.approx(np.arctan2(coef[2], coef[3]), abs=1e-9)
+        if seed:                           # (seed 0 drifts: a random walk, which the white σ over-covers)
+            z.append((g["amplitude"] - amp) / g["amplitude_sigma"])
+    z = np.array(z)
+    assert abs(z.mean()) < 0.25 and 0.8 < z.std() < 1.2, (z.mean(), z.std())
