@@ -212,6 +212,10 @@ def _local_floor(f: np.ndarray, p: np.ndarray, f0: float) -> float:
     return float(np.exp(icpt + slope * np.log(f0)))
 
 
+#: bins of the floor's ring wanted on each side of a peak (else no floor, and no peak, there)
+MIN_RING_BINS = 4
+
+
 def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dict | None = None, *,
                    max_per_coordinate: int = 3, min_ratio: float = 10.0) -> list:
     """The narrow peaks of each coordinate's Welch PSD that stand out of the spectrum around them: a sinusoid's
@@ -251,7 +255,7 @@ def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dic
         p = np.asarray(p, dtype=float)
         inner = (p[1:-1] >= p[:-2]) & (p[1:-1] > p[2:])
         cand = np.flatnonzero(inner) + 1
-        cand = cand[f[cand] >= 2 * half]
+        cand = cand[f[cand] >= 3 * half]
         found = []
         for i in cand[np.argsort(-p[cand], kind="stable")]:
             if len(found) >= max_per_coordinate:
@@ -260,8 +264,9 @@ def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dic
                 continue
             dist = np.abs(f - f[i])
             ring = (dist >= 3 * half) & (dist <= 12 * half) & (f > 0)
-            if not ring.any():
-                continue
+            below, above = ring & (f < f[i]), ring & (f > f[i])
+            if below.sum() < MIN_RING_BINS or above.sum() < MIN_RING_BINS:
+                continue                          # a floor from one side only is an extrapolation, not a floor
             floor = _local_floor(f[ring], p[ring], float(f[i]))
             if not (floor > 0 and p[i] >= min_ratio * floor):
                 continue
@@ -274,13 +279,21 @@ def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dic
     return out
 
 
-def peak_sine_fits(record, peaks: list, names: list, span_s: float) -> list:
+#: a peak's fitted amplitude at least this many of its σ: a steady sinusoid through the record
+STEADY_SIGMAS = 3.0
+
+
+def peak_sine_fits(record, peaks: list, names: list, span_s: float, mean: np.ndarray | None = None) -> list:
     """``peaks`` (:func:`spectral_peaks`) with each one's amplitude from a least-squares fit of the whole record at
     its frequency: y = c₀ + c₁ τ + a cos ωt + b sin ωt (τ the time over the record's span: a random walk's drift is
     no sinusoid), amplitude sqrt(a² + b²) and its 1-σ from the fit's residual (white), its phase at the record's
     first epoch; the PSD's estimate kept as ``amplitude_psd``.  One pass over ``record`` (an iterator of (t (k,),
     q (k, n)) chunks), the normal equations summed by :func:`column_sums`: the same bits for any chunking.  The fit
-    uses every epoch coherently (a five-minute record: the PSD's main lobe ±15 %, the fit a few %)."""
+    uses every epoch coherently (a five-minute record: the PSD's main lobe ±15 %, the fit a few %).  ``mean`` (n,):
+    the record's column means, taken out first (a coordinate far from 0 would leave the residual sum of squares to
+    cancellation).  ``steady``: whether the amplitude is at least :data:`STEADY_SIGMAS` of its σ — a sinusoid
+    through the record; a resonance excited at random, or decaying, peaks in the PSD without one (``amplitude_psd``
+    then describes it)."""
     if not peaks:
         return peaks
     col = np.array([names.index(p["coordinate"]) for p in peaks])
@@ -295,7 +308,7 @@ def peak_sine_fits(record, peaks: list, names: list, span_s: float) -> list:
         c, s_ = np.cos(np.outer(dt, w)), np.sin(np.outer(dt, w))             # (k, P)
         one = np.ones_like(c)
         X = np.stack([one, np.broadcast_to(tau[:, None], c.shape), c, s_], axis=2)     # (k, P, 4)
-        y = q[:, col]                                                        # (k, P)
+        y = q[:, col] - (0.0 if mean is None else np.asarray(mean, dtype=float)[col])          # (k, P)
         prod = np.concatenate([(X[:, :, iu[0]] * X[:, :, iu[1]]), X * y[:, :, None], (y * y)[:, :, None]], axis=2)
         flat = prod.reshape(len(t), -1)
         sums = column_sums(flat, sums)
@@ -310,16 +323,16 @@ def peak_sine_fits(record, peaks: list, names: list, span_s: float) -> list:
         try:
             cov = np.linalg.inv(nmat)
         except np.linalg.LinAlgError:
-            out.append(dict(pk, amplitude_psd=pk["amplitude"], amplitude_sigma=None, phase_rad=None))
+            out.append(dict(pk, amplitude_psd=pk["amplitude"], amplitude_sigma=None, phase_rad=None, steady=False))
             continue
         x = cov @ rhs
         var = max(float(yy - x @ rhs), 0.0) / max(n - 4, 1)                 # residual variance (white)
         a, b = x[2], x[3]
         amp = float(np.hypot(a, b))
         g = np.array([a, b]) / amp if amp > 0 else np.zeros(2)
-        out.append(dict(pk, amplitude=amp, amplitude_psd=pk["amplitude"],
-                        amplitude_sigma=float(np.sqrt(max(g @ (var * cov[2:, 2:]) @ g, 0.0))),
-                        phase_rad=float(np.arctan2(a, b))))
+        sigma = float(np.sqrt(max(g @ (var * cov[2:, 2:]) @ g, 0.0)))
+        out.append(dict(pk, amplitude=amp, amplitude_psd=pk["amplitude"], amplitude_sigma=sigma,
+                        phase_rad=float(np.arctan2(a, b)), steady=bool(amp >= STEADY_SIGMAS * sigma)))
     return out
 
 
@@ -882,7 +895,9 @@ def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: 
         (f, G), pair_G = _scan_welch(record(), store, sel, std, sum_std / N, welch, Wfilt, gyros,
                                      first["gyro_sum"] / N if gyros else None)
         res = _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, store, gyros, pair_G)
-        res["peaks"] = peak_sine_fits(record(), res["peaks"], names, N * T)
+        mean_all = np.zeros(len(names))
+        mean_all[sel] = first["sum"] / N                  # (the first pass's sums are of the selected coordinates)
+        res["peaks"] = peak_sine_fits(record(), res["peaks"], names, N * T, mean=mean_all)
         return res
     finally:
         store.close()
@@ -902,8 +917,9 @@ def _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, st
     fmax = min(opt.fmax_hz or fs / 2, fs / 2)
     keep = (f > 0) & (f <= fmax)
     coords = [names[i] for i in sel]
-    peaks = [pk for pk in spectral_peaks(f, {c: psd[f"gps_{c}"] for c in coords}, fs, nperseg,
-                                         {c: cfg.coord_unit(c) for c in coords}) if pk["frequency_hz"] <= fmax]
+    below = f <= fmax                             # peaks chosen among the frequencies shown only
+    peaks = spectral_peaks(f[below], {c: psd[f"gps_{c}"][below] for c in coords}, fs, nperseg,
+                           {c: cfg.coord_unit(c) for c in coords})
     return {
         "f_hz": f[keep], "psd": {k: v[keep] for k, v in psd.items()},
         "fdd_sv": S_sv[keep, : min(3, S_sv.shape[1])],

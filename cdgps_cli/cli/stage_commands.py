@@ -739,11 +739,19 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
         e = "" if m["error_pct"] is None else f" ({m['error_pct']:+.2f}%)"
         _say(ctx, f"  {m['mode']:<12} model {m['model_hz']:.4f} Hz  GPS {g} Hz{e}  {'seen' if m['seen'] else 'not seen'}")
     for p in s["peaks"]:
-        amp = f"{p['amplitude'] * 1e3:.2f} mm" if p["unit"] == "m" else f"{p['amplitude']:.3g} {p['unit'] or ''}"
-        _say(ctx, f"  peak {p['coordinate']:<12} {p['frequency_hz']:.4f} Hz  amplitude {amp}  ({p['ratio']:.0f} × its "
-                  f"floor)")
+        _say(ctx, f"  peak {p['coordinate']:<12} {p['frequency_hz']:.4f} Hz  {_peak_amplitude_text(p)}  ({p['ratio']:.0f} × "
+                  f"its floor)")
     if as_json:
         _emit_json({"modes": s["modes"], "peaks": s["peaks"], "settings": s["settings"]})
+
+
+def _peak_amplitude_text(p: dict) -> str:
+    """A spectral peak's amplitude as the summary prints it: the whole-record fit ± its σ (mm for metres, the unit
+    else), or, for a peak no steady sinusoid explains, the PSD's amplitude so marked."""
+    scale, unit = (1e3, " mm") if p["unit"] == "m" else (1.0, f" {p['unit']}" if p["unit"] not in (None, "1") else "")
+    if p.get("steady", True) and p.get("amplitude_sigma") is not None:
+        return f"amplitude {p['amplitude'] * scale:.3g} ± {p['amplitude_sigma'] * scale:.2g}{unit}"
+    return f"amplitude ≈ {p['amplitude_psd'] * scale:.3g}{unit} from the PSD (no steady sinusoid: a random or decaying resonance)"
 
 
 @main.group(short_help="Sensor-test reports (markdown, JSON, HTML)")

@@ -60,6 +60,16 @@ def out_of_order_text(who: str, n_epochs: int, first_s: float) -> str:
             f"read in time order")
 
 
+class EpochTimes:
+    """A file's observation epochs (``t``: GPS s, sorted, distinct), kept in a table's attrs: compared by identity,
+    so pandas' attrs checks (concat compares the inputs' attrs) never compare arrays."""
+
+    __slots__ = ("t",)
+
+    def __init__(self, t: np.ndarray):
+        self.t = t
+
+
 def _codes(types: list[str], name: str, v3: bool):
     """(phase type, code type) of signal ``name`` among a system's ``types``, or None; RINEX 2: the code types
     after the first that ``types`` lists follow (a record's pseudorange is the first of them it fills: GLONASS L2
@@ -96,8 +106,9 @@ def _glonass_slots(lines, end, path) -> dict:
 
 
 def _columns(hdr: _ObsHeader, names, path) -> dict:
-    """{signal: (system key, phase index, code index, (phase type, code type), further code indices)} for the
-    signals of the request (the further codes: RINEX 2's, a row's pseudorange the first of them it fills)."""
+    """{signal: (system key, phase index, code index, (phase type, code type, further code types…), further code
+    indices)} for the signals of the request (the further codes: RINEX 2's, a row's pseudorange the first of them it
+    fills; the header's ``signal_codes`` lists them all)."""
     v3 = hdr.version >= 3
     out = {}
     missing = []
@@ -112,7 +123,7 @@ def _columns(hdr: _ObsHeader, names, path) -> dict:
             missing.append(f"{name} ({SYSTEM_NAMES[sig.system]}: phase L{sig.band}{'/'.join(sig.attributes)}; "
                            f"the file has {' '.join(types) or 'no ' + SYSTEM_NAMES[sig.system] + ' types'})")
             continue
-        out[name] = (key, types.index(pc[0]), types.index(pc[1]) if pc[1] else -1, tuple(pc[:2]),
+        out[name] = (key, types.index(pc[0]), types.index(pc[1]) if pc[1] else -1, tuple(pc),
                      tuple(types.index(c) for c in pc[2:]))
     if missing:
         raise CdgpsError(f"{path}: signal(s) asked for but absent from the observation types: " + "; ".join(missing))
@@ -151,10 +162,24 @@ def _observation_header(path: str | Path, read: tuple[bytes, bool] | None = None
 _GALILEO_SAT = re.compile(r"E[ 0-9]\d")
 
 
+_V2_EPOCH = re.compile(r" [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d\.\d{7}  [01][ \d]{2}\d")
+
+
 def _lists_galileo(lines, end: int) -> bool:
-    """Whether a RINEX 2 body names a Galileo satellite: its epoch lines' satellite lists (columns 33–68, and their
-    continuation lines) are the only body fields with letters but event records' comments."""
-    return any(len(ln) > 32 and ln[32:68].strip() and _GALILEO_SAT.search(ln[32:68]) for ln in lines[end + 1:])
+    """Whether a RINEX 2 body names a Galileo satellite in the satellite list (columns 33–68 and its continuation
+    lines) of an observation epoch (flag 0 or 1; an event record's comment or marker name may hold such letters)."""
+    i = end + 1
+    while i < len(lines):
+        ln = lines[i]
+        if not _V2_EPOCH.match(ln):
+            i += 1
+            continue
+        nsat = int(ln[29:32])
+        sats = "".join(lines[k][32:68] for k in range(i, min(i + 1 + (nsat - 1) // 12, len(lines))))
+        if _GALILEO_SAT.search(sats):
+            return True
+        i += 1 + (nsat - 1) // 12
+    return False
 
 
 def signals_in_file(path: str | Path) -> list[str]:
@@ -203,8 +228,9 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
         ({signal: [phase type, code type]}) and ``glonass_slots`` ({sat: k}).
     obs : DataFrame
         Columns :data:`SIGNAL_COLUMNS`; rows with a phase value, epochs of flag 0/1 only.  ``attrs["file_epochs"]``:
-        how many distinct observation epochs the file holds, those without a phase of ``signals`` too (the
-        vectorised readers; absent from the line-by-line one's).
+        how many distinct observation epochs the file holds, those without a phase of ``signals`` too, and
+        ``attrs["file_epoch_times"]`` (:class:`EpochTimes`) which (the vectorised readers; absent from the
+        line-by-line one's).
 
     Raises
     ------
@@ -266,7 +292,8 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
         df = _table(lines, hdr, cols, p, slots, ep["time_gps_s"][obs], ep["line"][obs] + 1, ep["nsat"][obs], 1, None)
     except CdgpsError:
         raise Unsupported("record") from None
-    df.attrs["file_epochs"] = int(np.unique(ep["time_gps_s"][obs]).size)
+    df.attrs["file_epoch_times"] = EpochTimes(np.unique(ep["time_gps_s"][obs]))
+    df.attrs["file_epochs"] = int(df.attrs["file_epoch_times"].t.size)
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
@@ -565,7 +592,8 @@ def _fast_table(lines, start, hdr, cols, path, data: bytes | None, slots: dict) 
         times, first, count, sats_v2, per = _walk_v2(lines, start, hdr, path)
     buf = LineBuffer(lines) if data is None else LineBuffer.from_bytes(data, lines)
     df = _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2)
-    df.attrs["file_epochs"] = int(np.unique(np.asarray(times, dtype=np.float64)).size)
+    df.attrs["file_epoch_times"] = EpochTimes(np.unique(np.asarray(times, dtype=np.float64)))
+    df.attrs["file_epochs"] = int(df.attrs["file_epoch_times"].t.size)
     return df
 
 

@@ -762,17 +762,17 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
         return _ubx_stream([files[i] for i in order], sigs, who, warnings)
     warnings.extend(said + report.warnings)
     tab.attrs = {}
-    return {**reads[order[0]][0], "file_epochs": _joined_file_epochs([h for h, _ in reads], report)}, tab
+    return {**reads[order[0]][0], "file_epochs": _joined_file_epochs([h for h, _ in reads])}, tab
 
 
-def _joined_file_epochs(headers: list, report) -> int | None:
-    """The observation epochs of consecutive files joined: each file's distinct epochs (``file_epochs``, those
-    without a phase of the signals used too), less the epochs a later file repeats (the join's overlaps, counted
-    once); None when a file's count is not known."""
-    counts = [h.get("file_epochs") for h in headers]
-    if any(c is None for c in counts):
+def _joined_file_epochs(headers: list) -> int | None:
+    """The observation epochs of consecutive files joined: the union of each file's epochs (``file_epoch_times``,
+    those without a phase of the signals used too: an epoch two files both hold counts once); None when a file's
+    are not known."""
+    times = [h.get("file_epoch_times") for h in headers]
+    if any(t is None for t in times):
         return None
-    return int(sum(counts)) - int(sum(o["epochs"] for o in report.overlaps))
+    return int(np.unique(np.concatenate([t.t for t in times])).size)
 
 
 def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
@@ -808,6 +808,7 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
     if not is_ubx_log(path):
         header, obs = read_rinex_signals(path, sigs, glo_k)
         header["file_epochs"] = obs.attrs.pop("file_epochs", None)
+        header["file_epoch_times"] = obs.attrs.pop("file_epoch_times", None)
         back = obs.attrs.pop("epochs_out_of_order", None)
         if back:
             warnings.append(out_of_order_text(f"{path} ({who})", back[0], back[1]))

@@ -93,7 +93,7 @@ def _assert_same_result(a: dict, b: dict) -> None:
     assert list(a["psd"]) == list(b["psd"])
     for k in a["psd"]:
         assert np.array_equal(a["psd"][k], b["psd"][k], equal_nan=True), k
-    assert a["modes"] == b["modes"] and a["settings"] == b["settings"]
+    assert a["modes"] == b["modes"] and a["settings"] == b["settings"] and a["peaks"] == b["peaks"]
 
 
 @pytest.mark.parametrize("chunk", [37, 1000])

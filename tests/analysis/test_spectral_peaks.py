@@ -78,9 +78,9 @@ def test_the_sine_fit_is_the_whole_record_s_least_squares_for_any_chunking():
     z = []
     for seed in range(200):
         x = _series(n, fs, amp, f0, 1e-3, seed, walk=2e-4 if seed == 0 else 0.0)
-        peak = [{"coordinate": "x", "frequency_hz": f0, "amplitude": np.nan}]
+        peak = [{"coordinate": "x", "frequency_hz": f0, "amplitude": 1.0}]
         got = [peak_sine_fits(_chunks(t, x, size), peak, ["x"], n / fs)[0] for size in (n, 7, 64)]
-        assert got[0] == got[1] == got[2] or all(np.isnan(g["amplitude_psd"]) for g in got)
+        assert got[0] == got[1] == got[2] and got[0]["amplitude_psd"] == 1.0 and got[0]["steady"]
         g = got[0]
         if seed == 0:
             dt = t - t[0]
@@ -92,3 +92,52 @@ def test_the_sine_fit_is_the_whole_record_s_least_squares_for_any_chunking():
             z.append((g["amplitude"] - amp) / g["amplitude_sigma"])
     z = np.array(z)
     assert abs(z.mean()) < 0.25 and 0.8 < z.std() < 1.2, (z.mean(), z.std())
+
+
+def test_a_coordinate_far_from_zero_keeps_its_sigma():
+    """The record's mean is taken out before the sums (found by a review: at an offset of 10⁶ the residual sum of
+    squares cancelled, σ 3.7 mm for 0.075; at 4·10⁶, 0)."""
+    from cdgps_cli.analysis.spectra import peak_sine_fits
+
+    n, f0 = 301, 0.2
+    t = np.arange(n, dtype=float)
+    x = _series(n, 1.0, 3e-3, f0, 1e-3, 5)
+    peak = [{"coordinate": "x", "frequency_hz": f0, "amplitude": 1.0}]
+    ref = peak_sine_fits(_chunks(t, x, 50), peak, ["x"], float(n), mean=np.array([x.mean()]))[0]
+    for offset in (1e4, 1e6, 4e6):
+        y = x + offset
+        got = peak_sine_fits(_chunks(t, y, 50), peak, ["x"], float(n), mean=np.array([y.mean()]))[0]
+        assert got["amplitude"] == pytest.approx(ref["amplitude"], rel=1e-6)
+        assert got["amplitude_sigma"] == pytest.approx(ref["amplitude_sigma"], rel=1e-3), offset
+
+
+def test_peaks_are_chosen_below_the_highest_frequency_shown():
+    """Peaks above ``fmax`` took the three places of a coordinate before it was applied (a review): a 2 mm sine at
+    0.1 Hz under three stronger ones above 0.3 Hz was not listed."""
+    fs, n = 2.0, 7200
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(2)
+    x = 2e-3 * np.sin(2 * np.pi * 0.1 * t) + sum(8e-3 * np.sin(2 * np.pi * f * t) for f in (0.4, 0.55, 0.7))
+    x = x + 5e-4 * rng.standard_normal(n)
+    f, p = welch_psd(x, fs, 1200, 0.5, 8192)
+    below = f <= 0.3
+    got = spectral_peaks(f[below], {"x": p[below]}, fs, 1200)
+    assert [round(g["frequency_hz"], 2) for g in got] == [0.1]
+
+
+def test_no_peak_on_a_random_walk_s_steep_low_end():
+    """The repository's own simulated GNSS random-walk STATES (tests/data/format-2026-12-03, 120 s at 1 Hz): the
+    ring below a candidate was empty and the floor extrapolated from above onto the 1/f² slope — a 'peak' at
+    0.18 Hz, 20 × its floor, amplitude 0.02 ± 0.12 mm (a review)."""
+    from pathlib import Path
+
+    from tests._shared import run_cli
+
+    states = Path(__file__).resolve().parents[1] / "data" / "format-2026-12-03" / "gnss-states.mcap"
+    import json
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        r = run_cli("spectra", states, "-o", d, "--json", "-q")
+        assert r.exit_code == 0, r.output
+        assert json.loads(r.output[r.output.index("{"):])["peaks"] == []

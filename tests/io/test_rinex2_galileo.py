@@ -69,3 +69,20 @@ def test_the_rinex_2_values_are_the_rinex_3_file_s():
         np.testing.assert_array_equal(both[f"{col}_2"], both[f"{col}_3"], err_msg=col)
     first = both["time_gps_s"] == both["time_gps_s"].min()      # convbin flags a loss of lock at its first epoch
     np.testing.assert_array_equal(both["lli_2"][~first], both["lli_3"][~first])
+
+
+def test_a_galileo_name_in_a_comment_is_no_galileo_satellite(tmp_path):
+    """``signals_in_file`` lists Galileo for a mixed RINEX 2 file whose observation epochs name a Galileo satellite,
+    not for one whose event record's comment happens to hold "E12" in the satellite columns (a review)."""
+    lines = SUBSET.read_text().splitlines(keepends=True)
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    body = lines[end:]
+    # every Galileo satellite of the subset renamed a GPS one it does not hold, then an event with a comment
+    gps_only = [ln.replace("E", "G").replace("G04", "G31") if k in (0, 1, 2) else ln for k, ln in enumerate(body)]
+    head = "".join(lines[:end])
+    p = tmp_path / "no_galileo.obs"
+    p.write_text(head + "".join(gps_only[:3]))
+    assert "E:E1" not in signals_in_file(p)
+    event = f" 24  6 24  8 20  0.5000000  4  1{'':36}\n{'':32}{'E12 E19':<28}COMMENT\n"   # in columns 33-68
+    p.write_text(head + event + "".join(gps_only[:3]))
+    assert "E:E1" not in signals_in_file(p)

@@ -64,7 +64,7 @@ def test_rinex2_glonass_observations_with_frequency_numbers_from_elsewhere():
         read_rinex_signals(path, ["R:G1"])
     k = {f"R{n:02d}": (n % 13) - 7 for n in range(1, 25)}
     hdr, obs = read_rinex_signals(path, ["G:L1", "R:G1"], glonass_k=k)
-    assert hdr["signal_codes"]["R:G1"] == ["L1", "C1"] and set(obs["sat"].str[0]) == {"G", "R"}
+    assert hdr["signal_codes"]["R:G1"] == ["L1", "C1", "P1"] and set(obs["sat"].str[0]) == {"G", "R"}
     r = obs[obs["signal"] == "R:G1"]
     lam = 299792458.0 / (1602e6 + r["sat"].map(k).to_numpy() * 0.5625e6)
     assert np.allclose(r["wavelength_m"], lam) and r["pseudorange_m"].notna().all()

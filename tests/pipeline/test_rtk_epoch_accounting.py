@@ -135,3 +135,17 @@ def test_a_rover_in_several_files_counts_its_epochs_without_phase_too(tmp_path):
     ep = out["epoch_pairing"]
     assert ep["rover_epochs"] == 301 and ep["used"] == 298 and ep["dropped"] == {NO_PHASE: 3}, ep
     assert any("repeats 5 epoch(s)" in w for w in out["warnings"]), out["warnings"]
+
+
+def test_an_epoch_both_files_hold_without_phase_counts_once(tmp_path):
+    """A review's case: the two files overlap on epochs 150–159 and epoch 155, in both, holds no satellite; counted
+    over the files' own epochs (their union), not as each file's count less the phase table's overlap (302)."""
+    text = _edit_records((MOSAIC / "rover.obs").read_text(), {155}, lambda recs: [False] * len(recs))
+    for k, part in enumerate(_split(text, 150, 10)):
+        (tmp_path / f"rover_{k}.obs").write_text(part)
+    r = run_cli("-q", "rtk", "--base", MOSAIC / "base.obs", "--rover", tmp_path / "rover_0.obs", "--rover",
+                tmp_path / "rover_1.obs", "--nav", MOSAIC / "base.nav", "--base-xyz", *BASE_XYZ, "--signals", "G:L1",
+                "-o", tmp_path / "x.csv", "--json")
+    assert r.exit_code == 0, r.output
+    ep = json.loads(r.stdout)["epoch_pairing"]
+    assert ep["rover_epochs"] == 301 and ep["dropped"] == {NO_PHASE: 1}, ep
