@@ -751,7 +751,7 @@ def _peak_amplitude_text(p: dict) -> str:
     scale, unit = (1e3, " mm") if p["unit"] == "m" else (1.0, f" {p['unit']}" if p["unit"] not in (None, "1") else "")
     if p.get("steady", True) and p.get("amplitude_sigma") is not None:
         return f"amplitude {p['amplitude'] * scale:.3g} ± {p['amplitude_sigma'] * scale:.2g}{unit}"
-    return f"amplitude ≈ {p['amplitude_psd'] * scale:.3g}{unit} from the PSD (no steady sinusoid: a random or decaying resonance)"
+    return f"amplitude ≈ {p['amplitude_psd'] * scale:.3g}{unit} (PSD; not a steady sinusoid)"
 
 
 @main.group(short_help="Sensor-test reports (markdown, JSON, HTML)")

@@ -235,7 +235,10 @@ def _mark_modes(ax, res, cfg, label=True):
 
 
 def _mode_key(cfg, res) -> str:
-    """Mode numbers of the figure's labels with names and frequencies, in frequency order."""
+    """Mode numbers of the figure's labels with names and frequencies, in frequency order (none: a motion model
+    without modes, e.g. a GNSS random walk)."""
+    if not res["modes"]:
+        return "no model modes (the states' motion model has none): the peaks are found in the spectra alone"
     return "model modes: " + ", ".join(f"{m['number']} {m['mode']} ({m['model_hz']:g} Hz)"
                                        for m in sorted(res["modes"], key=lambda m: m["model_hz"]))
 
@@ -263,6 +266,35 @@ def _plot_index(f: np.ndarray, fmin: float, fmax: float, points: int = 2000) -> 
         return sel
     want = np.geomspace(f[sel[0]], f[sel[-1]], points)
     return np.unique(sel[0] + np.searchsorted(f[sel], want).clip(0, sel.size - 1))
+
+
+#: spectral peaks labelled in a PSD figure at most (more: their triangles alone)
+MAX_LABELLED_PEAKS = 6
+
+
+def _mark_peaks(ax, res: dict, colour: dict, fmin: float, fmax: float) -> None:
+    """Each spectral peak (``res["peaks"]``) as a triangle on its coordinate's PSD, in the line's colour; labelled
+    with its frequency and amplitude (mm for metres) when the states have no model modes and the peaks are few."""
+    shown = [p for p in res.get("peaks", []) if fmin <= p["frequency_hz"] <= fmax and p["coordinate"] in colour]
+    # labelled where nothing else marks the spectrum (no model modes) and they stay few; else the triangles alone
+    # (every figure in peaks.json)
+    label = not res["modes"] and len(shown) <= MAX_LABELLED_PEAKS
+    top = max([p["psd_peak"] for p in shown], default=1.0)
+    stacked: dict = {}                      # labels of peaks at about one frequency, one above the other
+    for p in shown:
+        f0 = p["frequency_hz"]
+        ax.plot([f0], [p["psd_peak"] * 1.6], marker="v", ms=6, color=colour[p["coordinate"]], ls="none")
+        if not label:
+            continue
+        amp = p["amplitude"] if p.get("steady", True) else p.get("amplitude_psd", p["amplitude"])
+        value = f"{amp * 1e3:.2f} mm" if p.get("unit") == "m" else f"{amp:.3g}"
+        k = stacked.setdefault(round(float(np.log10(f0)), 1), [])
+        ax.annotate(f"{p['coordinate']}: {f0:.3f} Hz, {value}", (f0, top * 2.0), xytext=(6, 2 + 10 * len(k)),
+                    textcoords="offset points", fontsize=7, color=colour[p["coordinate"]])
+        k.append(p)
+    if stacked:
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(lo, max(hi, top * 2.0 * 10 ** (0.25 * max(len(v) for v in stacked.values()))))
 
 
 def plot_psd(res, cfg, gnames) -> bytes:
@@ -297,16 +329,19 @@ def plot_psd(res, cfg, gnames) -> bytes:
         return fig
     else:
         fig, ax = plt.subplots(figsize=(10, 4.5))
+        colour = {}
         for k, v in res["psd"].items():
             if k.startswith("gps_q") or (k.startswith("gps_") and k[4:] in cfg.coord_names):
                 name = k[4:]
-                ax.loglog(f[sel], v[sel], lw=0.9, label=f"{name} [{cfg.coord_unit(name)}²/Hz]")
+                line, = ax.loglog(f[sel], v[sel], lw=0.9, label=f"{name} [{cfg.coord_unit(name)}²/Hz]")
+                colour[name] = line.get_color()
         ax.set_xlabel("frequency [Hz]")
         ax.set_ylabel("PSD [unit²/Hz]")
         _plain_log_ticks(ax)
         _mark_modes(ax, res, cfg)
+        _mark_peaks(ax, res, colour, fmin, fmax)
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-        ax.set_title(f"{cfg.name}: PSDs of the estimated coordinates (dashed: model modes)")
+        ax.set_title(f"{cfg.name}: PSDs of the estimated coordinates (dashed: model modes; ▼ spectral peaks)")
         fig.text(0.5, 0.005, _mode_key(cfg, res), ha="center", va="bottom", fontsize=7, wrap=True)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     return fig
