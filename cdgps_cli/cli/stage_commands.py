@@ -115,11 +115,16 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                    "docs/file-formats.md), or [NAME=]FILE.ubx, a u-blox log's ESF-MEAS IMU data (sensors NAME-accel, "
                    "NAME-gyro; NAME default imu), for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors "
                    "key. A --ubx receiver log with ESF-MEAS gives sensors ANTENNA-accel, ANTENNA-gyro by itself.")
+@click.option("--antex", "antex", type=click.Path(dir_okay=False), default=None,
+              help="GNSS: ANTEX file of the receivers' antenna calibrations, kept in the RUN and taken out of their "
+                   "observations by init/estimate [the config's antex, else none].")
+@click.option("--antenna", "antenna", multiple=True, metavar="ANTENNA=TYPE",
+              help="GNSS: an antenna's type and radome as the ANTEX file names them, or none [its RINEX header's].")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="RUN.mcap to write.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, strict, output, as_json,
-           sensor_logs=()):
+           sensor_logs=(), antex=None, antenna=()):
     """Validate logs and write one self-contained RUN.mcap.
 
     \b
@@ -137,7 +142,7 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     (warning naming both files), gaps between files are reported (summary, --json "joins", warnings);
     files of another receiver, marker, antenna, L1 signal or rate are refused (docs/gnss-pipeline.md).
     """
-    gnss = bool(rinex or ubx or nav or master)
+    gnss = bool(rinex or ubx or nav or master or antex or antenna)
     if not gnss and config and receiver_csv is None:
         from cdgps_cli.config.structure import config_kind
 
@@ -149,7 +154,7 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         if receiver_csv or gyro_csv or actuator_csv:
             raise CdgpsError("CSV logs and GNSS receiver files (--rinex/--ubx/--nav/--master, or a GNSS config) cannot be "
                              "mixed in one ingest")
-        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict, sensor_logs)
+        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict, sensor_logs, antex, antenna)
         return
     if sensor_logs:
         raise click.UsageError("--sensor-log applies to GNSS runs (the structure run's gyro log is GYRO_CSV)")
@@ -194,10 +199,11 @@ def _grid_note(c: dict | None) -> str:
     return f" (of {p['rover_epochs']} rover epochs: {'; '.join(parts)})" if parts else ""
 
 
-def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False, sensor_logs=()):
+def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False, sensor_logs=(), antex=None,
+                 antenna=()):
     from cdgps_cli.config.structure import load_gnss_config, parse_gnss_config
     from cdgps_cli.io.gnss_run import default_config_text
-    from cdgps_cli.pipeline.gnss_ingest import ingest_gnss
+    from cdgps_cli.pipeline.gnss_ingest import ingest_gnss, with_antenna_options
 
     rx, ub = _parse_named_files(rinex, "--rinex"), _parse_named_files(ubx, "--ubx")
     if config:
@@ -212,6 +218,14 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
         if master is not None and master not in files:
             raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
         cfg = parse_gnss_config(default_config_text(files, list(nav), master), "<generated config>")
+    if antex or antenna:
+        types = {}
+        for it in antenna:
+            name, sep, typ = it.partition("=")
+            if not sep or not name.strip() or not typ.strip():
+                raise CdgpsError(f"--antenna expects ANTENNA=TYPE (e.g. base=\"TRM59800.80 SCIT\", or rover=none), got {it!r}")
+            types[name.strip()] = typ.strip()
+        cfg = with_antenna_options(cfg, antex, types)
     s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,
                     progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict,
                     sensor_paths=list(sensor_logs) if sensor_logs else None)

@@ -147,12 +147,32 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
     return parts["done"](s)
 
 
+def with_antenna_options(cfg: GnssConfig, antex=None, antenna_types: dict | None = None) -> GnssConfig:
+    """``cfg`` with the command line's ANTEX file (``ingest --antex``, over ``[gnss] antex``) and antenna types
+    (``--antenna NAME=TYPE``, over ``[gnss.antennas.NAME] antenna_type``; an antenna the config has no table of gets
+    one).  CdgpsError for a type named without any ANTEX file (as the config's check words it)."""
+    from dataclasses import replace  # noqa: PLC0415
+
+    from cdgps_cli.config.structure import GnssAntenna  # noqa: PLC0415
+
+    types = dict(antenna_types or {})
+    antex = str(antex) if antex is not None else cfg.antex
+    for name, typ in types.items():
+        if typ.strip().lower() != "none" and antex is None:
+            raise CdgpsError(f"--antenna {name}={typ!r}: no ANTEX file (--antex, or [gnss] antex) to take its "
+                             f"calibration from")
+    ants = [replace(a, antenna_type=types.pop(a.name)) if a.name in types else a for a in cfg.antennas]
+    ants += [GnssAntenna(name, antenna_type=typ) for name, typ in types.items()]
+    return replace(cfg, antex=antex, antennas=tuple(ants))
+
+
 def _antex_checked(cfg: GnssConfig) -> dict | None:
     """``[gnss] antex``'s models, read once and checked for every ``antenna_type`` the config names (None: no file)."""
     if cfg.antex is None:
         return None
     return named_antennas_known(cfg.antex, {a.name: a.antenna_type for a in cfg.antennas},
-                                {a.name: f"[gnss.antennas.{a.name}] antenna_type" for a in cfg.antennas})
+                                {a.name: f"[gnss.antennas.{a.name}] antenna_type (--antenna {a.name}=TYPE)"
+                                 for a in cfg.antennas})
 
 
 def antenna_parts(cfg: GnssConfig, inp, antex_models: dict | None = None) -> tuple[dict, dict]:
@@ -167,7 +187,8 @@ def antenna_parts(cfg: GnssConfig, inp, antex_models: dict | None = None) -> tup
     headers = {n: inp.receivers[n].header for n in names}
     paths = {n: inp.receivers[n].file for n in names}
     models = antenna_models(cfg.antex, named, headers, paths, inp.warnings,
-                            {n: f"[gnss.antennas.{n}] antenna_type" for n in names}, "[gnss] antex", antex_models)
+                            {n: f"[gnss.antennas.{n}] antenna_type (--antenna {n}=TYPE)" for n in names},
+                            "[gnss] antex (--antex)", antex_models)
     if cfg.antex is None:
         return {}, {}
     for n, m in models.items():

@@ -291,3 +291,24 @@ def test_baseline_with_a_job_s_types_and_stations_renamed_on_the_command_line(pc
     assert r.exit_code == 0, r.output
     got = json.loads((d / "renamed.json").read_text())
     assert got["antennas"]["receivers"] == {"a": None, "b": "ROVERANT NONE"}
+
+
+def test_ingest_takes_the_antex_file_and_the_types_from_the_command_line(pco_pair):
+    """``ingest --rinex … --antex FILE --antenna NAME=TYPE`` without a config: the RUN keeps the same calibrations as
+    a config's ``[gnss] antex`` gives, and INIT is the same; a type without a file is refused (exit 2, no RUN)."""
+    d = pco_pair
+    common = ("ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_pco.obs'}",
+              "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "-q")
+    r = run_cli(*common, "--antex", d / "r.atx", "--antenna", "base=none", "--antenna", "rover=ROVERANT NONE",
+                "-o", d / "cli.mcap")
+    assert r.exit_code == 0, r.output
+    r = run_cli("init", d / "cli.mcap", "-o", d / "cli.json", "-q")
+    assert r.exit_code == 0, r.output
+    got = json.loads((d / "cli.json").read_text())
+    ref = _ingest_init(d, "cfg_l1", d / "rover_pco.obs", True, signals=False)
+    assert got["antennas"] == ref["antennas"]
+    for c in "enu":
+        assert got["states"][f"rover_{c}"] == pytest.approx(ref["states"][f"rover_{c}"], abs=1e-9), c
+    out = d / "cli_bad.mcap"
+    r = run_cli(*common, "--antenna", "rover=ROVERANT NONE", "-o", out)
+    assert r.exit_code == 2 and "no ANTEX file" in r.output and not out.exists(), r.output
