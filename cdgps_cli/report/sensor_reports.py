@@ -775,6 +775,10 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
                 f"(frequency and damping ratio ζ by a maximum-likelihood single-mode fit "
                 f"to the modal filter's periodogram, with 1-σ uncertainties; FDD/PSD segment {st['segment_s']:.0f} s, "
                 f"resolution {st['resolution_hz']:.4f} Hz; {st['duration_s']:.0f} s of data).")
+        if not s["modes"]:                    # a GNSS random walk's states: the peaks are the spectrum's findings
+            text = (f"The states' motion model has no modes (nothing to identify against); {len(s['peaks'])} spectral "
+                    f"peak(s) below (FDD/PSD segment {st['segment_s']:.0f} s, resolution {st['resolution_hz']:.4f} Hz; "
+                    f"{st['duration_s']:.0f} s of data).")
         note = _SPECTRUM_NOTE.format(pct=opt.seen_pct, mac=opt.min_mac)
         if not s["gyros"]:
             note += " No gyro log was given (--gyro), so the gyro column is empty."
@@ -786,9 +790,34 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
         if shared:
             note += (" The gyro found one peak for " + "; ".join(shared) + ": these modes are closer together than "
                      "the search band, and the gyro column gives no separate frequency for each.")
-        md = f"# Spectrum sensor test\n\n{text}\n\n{_md_table(rows, header)}\n\n{note}\n"
-        data = {"modes": modes, "settings": st, "seen": seen, "summary": text, "provenance": prov}
+        p_rows, p_header, p_text = _peak_rows(s["peaks"], st)
+        md = (f"# Spectrum sensor test\n\n{text}\n\n{_md_table(rows, header)}\n\n{note}\n\n## Spectral peaks\n\n"
+              f"{p_text}\n\n{_md_table(p_rows, p_header)}\n")
+        data = {"modes": modes, "peaks": s["peaks"], "settings": st, "seen": seen, "summary": text, "provenance": prov}
         _write_report(dest, "Spectrum sensor test", md, data,
                       [("Identified modes", f"<p>{html.escape(text)}</p>" + _html_table(rows, header)
-                        + f"<p class='note'>{html.escape(note)}</p>")], pngs, _spectrum_captions(s, _coordinate_model(states)))
+                        + f"<p class='note'>{html.escape(note)}</p>"),
+                       ("Spectral peaks", f"<p>{html.escape(p_text)}</p>" + _html_table(p_rows, p_header))],
+                      pngs, _spectrum_captions(s, _coordinate_model(states)))
     return data
+
+
+def _peak_rows(peaks: list, settings: dict) -> tuple[list, list, str]:
+    """(rows, header, words) of the spectrum report's table of spectral peaks (``peaks.json``'s ``peaks``)."""
+    rows = []
+    for p in peaks:
+        scale, unit = (1e3, "mm") if p.get("unit") == "m" else (1.0, p.get("unit") or "")
+        steady = p.get("steady", True)
+        rows.append([p["coordinate"], f"{p['frequency_hz']:.4f}",
+                     f"{p['amplitude'] * scale:.3g}" if steady else "–",
+                     _fmt(None if p.get("amplitude_sigma") is None or not steady else p["amplitude_sigma"] * scale, ".2g"),
+                     f"{p['amplitude_psd'] * scale:.3g}" if "amplitude_psd" in p else "–", unit, f"{p['ratio']:.0f}",
+                     "yes" if steady else "no"])
+    header = ["coordinate", "Hz", "amplitude (fit)", "σ", "amplitude (PSD)", "unit", "× floor", "steady"]
+    text = (f"{len(peaks)} peak(s) standing at least 10 times above the power law fitted to the spectrum around them, "
+            f"whatever the motion model: the frequency from the Welch PSD (resolution {settings['resolution_hz']:.4f} Hz), "
+            f"the amplitude from a least-squares sinusoid over the whole record ({settings['duration_s']:.0f} s) with its "
+            f"1-σ, and from the PSD's main lobe; 'steady' no where the fit is under 3 σ (a resonance excited at random "
+            f"or decaying, which no one sinusoid describes).") if peaks else \
+        "No spectral peak stands 10 times above the spectrum around it."
+    return rows, header, text

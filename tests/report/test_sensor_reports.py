@@ -199,6 +199,12 @@ def test_spectrum_report_files(spectrum_out, testbed_cfg):
     assert rep["seen"] == sum(m["seen"] for m in rep["modes"]) == d["seen"]
     md = (out / "report.md").read_text()
     assert "(psd.png)" in md and "(fdd.png)" in md and rep["summary"] in md
+    # the spectral peaks (session 30): the table of peaks.json's, in the page too
+    assert rep["peaks"] == peaks["peaks"] and peaks["peaks"], peaks["peaks"]
+    assert "## Spectral peaks" in md and "Spectral peaks" in (out / "report.html").read_text()
+    for p in peaks["peaks"]:
+        assert {"coordinate", "frequency_hz", "amplitude", "amplitude_sigma", "amplitude_psd", "steady"} <= set(p)
+        assert f"| {p['coordinate']} | {p['frequency_hz']:.4f} |" in md
 
 
 def test_spectrum_report_identifies_modes_from_estimates(spectrum_out, record_property):
