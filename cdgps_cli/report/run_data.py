@@ -75,8 +75,8 @@ class StatesBlocks:
                     wanted["cov"] = key + name
                     self._cov_kind = name
                     break
-            for name in ("nis", "nis_dof", "residual_m"):
-                if RESIDUAL_PACKED + name in spans:
+            for name in ("nis", "nis_dof", "residual_m"):       # the estimate's own series' (not a side series')
+                if topic == STATE_TOPIC and RESIDUAL_PACKED + name in spans:
                     wanted[name] = RESIDUAL_PACKED + name
             for name in self._series.get(topic, {}).get("extra", []):
                 wanted["extra:" + name] = key + name
