@@ -245,7 +245,8 @@ def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dic
     -------
     list of dict
         ``coordinate``, ``frequency_hz``, ``amplitude`` (the coordinate's unit), ``unit``, ``psd_peak``,
-        ``psd_floor`` (unit²/Hz) and ``ratio`` (peak / floor), by coordinate then strength.
+        ``psd_floor`` (unit²/Hz), ``ratio`` (peak / floor) and ``prominence`` (peak / the higher of the two
+        troughs within 3 half-widths on either side), by coordinate then strength.
     """
     f = np.asarray(f, dtype=float)
     df = float(f[1] - f[0]) if f.size > 1 else 0.0
@@ -272,15 +273,28 @@ def spectral_peaks(f: np.ndarray, psd: dict, fs: float, nperseg: int, units: dic
                 continue
             lobe = dist <= 1.25 * half
             power = float(np.sum(np.maximum(p[lobe] - floor, 0.0)) * df)
+            left, right = (f >= f[i] - 3 * half) & (f < f[i]), (f > f[i]) & (f <= f[i] + 3 * half)
+            trough = max(float(p[left].min()), float(p[right].min())) if left.any() and right.any() else float(p[i])
             found.append({"coordinate": name, "frequency_hz": _parabolic(f, p, int(i)),
                           "amplitude": float(np.sqrt(2.0 * power)), "unit": (units or {}).get(name),
-                          "psd_peak": float(p[i]), "psd_floor": floor, "ratio": float(p[i] / floor)})
+                          "psd_peak": float(p[i]), "psd_floor": floor, "ratio": float(p[i] / floor),
+                          "prominence": float(p[i] / trough) if trough > 0 else float("inf")})
         out += found
     return out
 
 
 #: a peak's fitted amplitude at least this many of its σ: a steady sinusoid through the record
 STEADY_SIGMAS = 3.0
+#: a peak no steady sinusoid explains is kept only this many times above the troughs on both its sides (a resonance
+#: excited at random); else it is a knee of the spectrum (a smoother's roll-off read against a straight-line floor)
+MIN_PROMINENCE = 3.0
+
+
+def kept_peaks(peaks: list) -> list:
+    """The peaks (:func:`peak_sine_fits`') worth listing: a steady sinusoid, or a resonance at least
+    :data:`MIN_PROMINENCE` times above the troughs on both its sides; not the knee of a spectrum (a smoothed random
+    walk's roll-off, 16 times a straight-line floor there, fitted amplitude under its σ: a real u-blox pair)."""
+    return [p for p in peaks if p["steady"] or p["prominence"] >= MIN_PROMINENCE]
 
 
 def peak_sine_fits(record, peaks: list, names: list, span_s: float, mean: np.ndarray | None = None) -> list:
@@ -897,7 +911,7 @@ def spectra_of_chunks(cfg: StructureConfig, chunks, n_epochs: int, gyro_time_s: 
         res = _spectra_result(cfg, opt, names, sel, N, T, nperseg, nfft, f, G, std, Um, store, gyros, pair_G)
         mean_all = np.zeros(len(names))
         mean_all[sel] = first["sum"] / N                  # (the first pass's sums are of the selected coordinates)
-        res["peaks"] = peak_sine_fits(record(), res["peaks"], names, N * T, mean=mean_all)
+        res["peaks"] = kept_peaks(peak_sine_fits(record(), res["peaks"], names, N * T, mean=mean_all))
         return res
     finally:
         store.close()
