@@ -509,24 +509,52 @@ def _glonass_nav(signals, nav_list) -> tuple:
 
 
 def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: dict | None = None,
-                        pieces: dict | None = None) -> None:
+                        pieces: dict | None = None, warnings: list | None = None) -> None:
     """Every receiver's table of ``signals`` (RINEX, or a UBX log's RXM-RAWX: :func:`~cdgps_cli.io.ubx.read_ubx_signals`);
     CdgpsError naming the file when a receiver lacks one of them (the receivers must share every
     signal asked for).  ``glonass_k``: GLONASS frequency numbers of the navigation records, for
     RINEX files whose header lacks ``GLONASS SLOT / FRQ #`` (UBX logs carry freqId)."""
-    from cdgps_cli.io.rinex_signals import first_of_repeated_epochs, read_rinex_signals  # noqa: PLC0415
+    from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, glonass_without_frequency_text,  # noqa: PLC0415
+                                            read_rinex_signals)
     from cdgps_cli.io.ubx import read_ubx_signals  # noqa: PLC0415
 
-    for n, rx in receivers.items():
+    glonass_k = dict(glonass_k or {})
+    order = sorted(receivers, key=lambda n: files[n][0] != "ubx")      # u-blox logs first: their GLONASS numbers
+    for n in order:
+        rx = receivers[n]
         kind, p = files[n]
         say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
         paths = (pieces or {}).get(n) or [p]
         tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
                 for q in paths]
+        if kind == "ubx":             # RXM-RAWX's freqId: the numbers a RINEX file without its slots needs
+            for t in tabs:
+                for sat, k in glonass_numbers(t).items():
+                    glonass_k.setdefault(sat, k)
+        for q, t in zip(paths, tabs):
+            unknown = t.attrs.get("glonass_without_frequency")
+            if unknown and warnings is not None:
+                warnings.append(glonass_without_frequency_text(f"{q} ({n})", unknown))
         tab = tabs[0] if len(tabs) == 1 else join_signal_tables(n, tabs, paths)
         tab = first_of_repeated_epochs(tab)[0]        # an epoch written twice: the first (the L1 reader's warning says)
         refuse_absent_signals(signals, tab, p, n)
         rx.signals = tab
+
+
+def glonass_numbers(tab: pd.DataFrame) -> dict:
+    """{satellite: GLONASS frequency number k} of a signal table's GLONASS rows (their wavelengths: f = c/λ =
+    f₀ + k Δf), e.g. a u-blox log's, whose RXM-RAWX carries each satellite's freqId."""
+    from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S  # noqa: PLC0415
+    from cdgps_cli.core.signals import signal  # noqa: PLC0415
+
+    out = {}
+    glo = tab[tab["signal"].astype(str).str.startswith("R:").to_numpy()]
+    for (sat, name), lam in glo.groupby(["sat", "signal"], observed=True)["wavelength_m"].first().items():
+        sg = signal(str(name))
+        k = int(round((SPEED_OF_LIGHT_M_S / float(lam) - sg.frequency_hz) / sg.fdma_step_hz))
+        if -7 <= k <= 6:
+            out.setdefault(str(sat), k)
+    return out
 
 
 def refuse_absent_signals(signals, tab: pd.DataFrame, p, n: str) -> None:
@@ -609,7 +637,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
         warnings += _receiver_warnings(n, files[n][1], rx)
     nav_ahead, glonass_k = _glonass_nav(cfg.signals, nav_list)
     if cfg.signals:
-        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces)
+        _read_signal_tables(cfg.signals, receivers, files, say, glonass_k, pieces, warnings)
     for n, rx in receivers.items():
         warnings += empty_epochs_warning(n, files[n][1], rx)
     nav, nav_source = _ingest_nav(cfg, nav_list, nav_ahead, receivers, files, pieces, master, say, warnings)

@@ -29,7 +29,7 @@ from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
 __all__ = ["read_rinex_signals", "SIGNAL_COLUMNS", "first_of_repeated_epochs", "repeated_epochs_text",
-           "out_of_order_text"]
+           "out_of_order_text", "glonass_without_frequency_text"]
 
 SIGNAL_COLUMNS = ("time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m")
 
@@ -52,6 +52,12 @@ def repeated_epochs_text(who: str, times_s, n_rows: int | None = None, lines=Non
                  f"{' …' if len(lines) > 5 else ''}")
     return (f"{who}: {times_s.size} epoch(s) written more than once, the first record used ({what}; first at GPS "
             f"{times_s[0]:.3f} s)")
+
+
+def glonass_without_frequency_text(who: str, sats) -> str:
+    """The one wording of GLONASS satellites left out for want of a frequency number (:func:`_check_slots`)."""
+    return (f"{who}: GLONASS satellite(s) {' '.join(sats)} left out: no frequency number (the header has no GLONASS "
+            f"SLOT / FRQ # of them and no navigation record gives one; without an ephemeris no solver could use them)")
 
 
 def out_of_order_text(who: str, n_epochs: int, first_s: float) -> str:
@@ -320,7 +326,7 @@ def _observations(lines, start, hdr, cols, path, data: bytes | None = None, slot
     df["wavelength_m"] = _wavelengths(df, slots or {}, path)
     times = df["time_gps_s"].to_numpy()
     df = df.sort_values(["time_gps_s", "signal", "sat"], kind="stable").reset_index(drop=True)
-    return _noting_time_order(df, times)
+    return _without_unknown_slots(_noting_time_order(df, times))
 
 
 def _noting_time_order(df: pd.DataFrame, times) -> pd.DataFrame:
@@ -349,12 +355,8 @@ def _wavelengths(df: pd.DataFrame, slots: dict, path) -> np.ndarray:
             lam[idx] = sig.wavelength_m
             continue
         sats = df["sat"].to_numpy()[idx]
-        absent = sorted(set(sats) - set(slots))
-        if absent:
-            raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
-                             "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
-                             "the satellite); FDMA phases need them")
-        lam[idx] = [SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, slots[s]) for s in sats]
+        _check_slots(set(sats), slots, path)
+        lam[idx] = [SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sig, slots[s]) if s in slots else np.nan for s in sats]
     return lam
 
 
@@ -663,7 +665,7 @@ def _table(buf, hdr, cols, path, slots, times, first, count, per, sats_v2) -> pd
         "phase_cycles": np.concatenate([p[2] for p in parts])[take],
         "pseudorange_m": np.concatenate([p[3] for p in parts])[take],
         "lli": np.concatenate([p[4] for p in parts])[take], "wavelength_m": lam})
-    return _noting_time_order(df, times)
+    return _without_unknown_slots(_noting_time_order(df, times))
 
 
 def _record_satellites(buf, rec_line: np.ndarray, per: int, v3: bool, sats_v2) -> tuple[list, np.ndarray]:
@@ -724,14 +726,36 @@ def _wavelength_array(sat_code: np.ndarray, sat_names: list, sig: np.ndarray, na
             table[i] = sg.wavelength_m
     for i in fdma:
         present = [(c, sat_names[c]) for c in has[i].nonzero()[0].tolist()]
-        absent = sorted({s for _, s in present} - set(slots))
-        if absent:
-            raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
-                             "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
-                             "the satellite); FDMA phases need them")
+        _check_slots({s for _, s in present}, slots, path)
         for c, s in present:
-            table[i, c] = SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sigs[i], slots[s])
+            table[i, c] = SPEED_OF_LIGHT_M_S / glonass_frequency_hz(sigs[i], slots[s]) if s in slots else np.nan
     return table[sig, sat_code]
+
+
+def _check_slots(sats: set, slots: dict, path) -> list:
+    """The GLONASS satellites of ``sats`` without a frequency number in ``slots`` (sorted): their rows are left out
+    (:func:`_without_unknown_slots`) when ``slots`` has any — numbers from the header or from the navigation
+    records, which give one to every satellite with an ephemeris, so these have none and no solver could use them;
+    CdgpsError naming them when it has none (no source at all)."""
+    absent = sorted(set(sats) - set(slots))
+    if absent and not slots:
+        raise CdgpsError(f"{path}: GLONASS frequency numbers absent for {' '.join(absent)} "
+                         "(header line 'GLONASS SLOT / FRQ #' expected, or a GLONASS navigation record of "
+                         "the satellite); FDMA phases need them")
+    return absent
+
+
+def _without_unknown_slots(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` less its rows of no wavelength (GLONASS satellites without a frequency number, :func:`_check_slots`),
+    named in ``attrs["glonass_without_frequency"]`` (sorted satellites) when there are any."""
+    lam = df["wavelength_m"].to_numpy(dtype=np.float64)
+    bad = ~np.isfinite(lam)
+    if not bad.any():
+        return df
+    attrs = dict(df.attrs)
+    out = df[~bad].reset_index(drop=True)
+    out.attrs = {**attrs, "glonass_without_frequency": sorted(set(df["sat"].to_numpy()[bad].tolist()))}
+    return out
 
 
 def _field_place(rec_line: np.ndarray, k: int, v3: bool):

@@ -33,7 +33,8 @@ from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav
-from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, out_of_order_text, read_rinex_signals,
+from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, glonass_without_frequency_text, out_of_order_text,
+                                        read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
 from cdgps_cli.model.gps.orbits import ecef_to_enu, ecef_to_geodetic, enu_matrix
@@ -809,6 +810,9 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dic
         header, obs = read_rinex_signals(path, sigs, glo_k)
         header["file_epochs"] = obs.attrs.pop("file_epochs", None)
         header["file_epoch_times"] = obs.attrs.pop("file_epoch_times", None)
+        unknown = obs.attrs.pop("glonass_without_frequency", None)
+        if unknown:
+            warnings.append(glonass_without_frequency_text(f"{path} ({who})", unknown))
         back = obs.attrs.pop("epochs_out_of_order", None)
         if back:
             warnings.append(out_of_order_text(f"{path} ({who})", back[0], back[1]))

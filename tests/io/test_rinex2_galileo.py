@@ -86,3 +86,31 @@ def test_a_galileo_name_in_a_comment_is_no_galileo_satellite(tmp_path):
     event = f" 24  6 24  8 20  0.5000000  4  1{'':36}\n{'':32}{'E12 E19':<28}COMMENT\n"   # in columns 33-68
     p.write_text(head + event + "".join(gps_only[:3]))
     assert "E:E1" not in signals_in_file(p)
+
+
+def test_glonass_satellites_without_a_frequency_number_are_left_out_when_others_have_one():
+    """A RINEX 2 CORS (no GLONASS SLOT / FRQ # lines) beside a u-blox rover: the numbers come from the rover's
+    RXM-RAWX or the navigation records, which give one to every satellite with an ephemeris; a satellite without
+    one has no ephemeris and no solver could use it, so its rows are left out and named (the default
+    `config → ingest` of such a pair refused the whole file, a sweep of real files, session 30).  With no number
+    at all the file is still refused, naming the satellites."""
+    some = {k: v for k, v in GLONASS_K.items() if k not in ("R02", "R13")}
+    _, t = read_rinex_signals(SUBSET, ["G:L1", "R:G1"], glonass_k=some)
+    assert t.attrs["glonass_without_frequency"] == ["R02", "R13"]
+    assert not set(t["sat"]) & {"R02", "R13"} and np.isfinite(t["wavelength_m"]).all()
+    old = rinex_signals.FAST_PARSE
+    rinex_signals.FAST_PARSE = False
+    try:
+        _, slow = read_rinex_signals(SUBSET, ["G:L1", "R:G1"], glonass_k=some)
+    finally:
+        rinex_signals.FAST_PARSE = old
+    pd.testing.assert_frame_equal(t, slow)
+    with pytest.raises(Exception, match="GLONASS frequency numbers absent for R01"):
+        read_rinex_signals(SUBSET, ["R:G1"])
+
+
+def test_the_frequency_numbers_of_a_table_s_glonass_rows():
+    from cdgps_cli.io.gnss_run import glonass_numbers
+
+    _, t = read_rinex_signals(SUBSET, ["G:L1", "R:G1", "R:G2"], glonass_k=GLONASS_K)
+    assert glonass_numbers(t) == GLONASS_K
