@@ -743,7 +743,9 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
     with progress.stage("spectra, mode fits and figures"):
         s = run_spectra(st, run, _spectra_options(coords, segment_s, overlap, pad), out_dir)
     seen = sum(1 for m in s["modes"] if m["seen"])
-    _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {seen} of {len(s['modes'])} modes identified")
+    found = (f"{seen} of {len(s['modes'])} modes identified" if s["modes"] else
+             f"no model modes (the states' motion model has none), {len(s['peaks'])} spectral peak(s)")
+    _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {found}")
     if s.get("fusion") and not s["fusion"]["gyros_independent_check"]:
         _warn(s["fusion"]["note"])
     elif s.get("fusion"):

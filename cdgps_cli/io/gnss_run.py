@@ -905,6 +905,8 @@ def write_gnss_run_blocks(cfg: GnssConfig, out_path: str | Path, inp: IngestInpu
     }
     if inp.joins:
         summary["joins"] = inp.joins
+    if inp.antennas is not None:
+        summary["antennas"] = inp.antennas
     return summary
 
 

@@ -70,6 +70,8 @@ def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: lis
                 raise CdgpsError(f"{option[who]} {name!r}: no {antex_option} file to take its calibration from")
         warnings += mixed_antennas_note(headers, paths, antex_option)
         return dict.fromkeys(named)
+    for who, name in named.items():
+        _two_words(name, option[who])
     models = read_antex(antex) if models is None else models
     out = {}
     for who in named:
@@ -79,7 +81,7 @@ def antenna_models(antex, named: dict, headers: dict, paths: dict, warnings: lis
             continue
         if not name.strip():
             raise CdgpsError(f"{paths[who]} ({who}): the file names no antenna (a RINEX header's ANT # / TYPE; a u-blox "
-                             f"log has none); give {option[who]} TYPE (or none) for {antex_option} {antex}")
+                             f"log has none); give {_with_type(option[who])} (or none) for {antex_option} {antex}")
         model, note = find_antenna(models, name)
         if model is None:
             raise CdgpsError(f"{antex}: no calibration of {paths[who]}'s ({who}) antenna {' '.join(name.split())!r}; "
@@ -94,12 +96,28 @@ def named_antennas_known(antex, named: dict, option: dict) -> dict:
     """The ANTEX file's models (:func:`~cdgps_cli.io.antex.read_antex`), once every antenna ``named`` {receiver: type or
     None} by an option is checked to be in it (CdgpsError as :func:`antenna_models` words it): what can be known of the
     file before the observations (and their headers) are read."""
+    for who, name in named.items():
+        _two_words(name, option[who])
     models = read_antex(antex)
     for who, name in named.items():
         if name is not None and name.strip().lower() != "none" and find_antenna(models, name)[0] is None:
             raise CdgpsError(f"{antex}: no calibration of {who}'s antenna {' '.join(name.split())!r}; give {option[who]} "
                              f"with a type the file has, or none")
     return models
+
+
+def _with_type(option: str) -> str:
+    """An option as a user types it with an antenna: ``--rover-antenna TYPE``; one that shows its form already
+    (``--antenna rover=TYPE``) as it is."""
+    return option if "TYPE" in option else f"{option} TYPE"
+
+
+def _two_words(name, option: str) -> None:
+    """CdgpsError for an antenna named by more than a type and a radome (IGS types hold no space): a third word was
+    dropped unsaid, and another antenna's calibration could be taken."""
+    if name is not None and len(str(name).split()) > 2:
+        raise CdgpsError(f"{option} {name!r}: expected an antenna type and at most its radome (\"TRM59800.80 SCIT\"), "
+                         f"got {len(str(name).split())} words")
 
 
 def mixed_antennas_note(headers: dict, paths: dict, antex_option: str = "--antex") -> list:

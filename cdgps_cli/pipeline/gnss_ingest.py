@@ -170,6 +170,9 @@ def _antex_checked(cfg: GnssConfig) -> dict | None:
     """``[gnss] antex``'s models, read once and checked for every ``antenna_type`` the config names (None: no file)."""
     if cfg.antex is None:
         return None
+    if not Path(cfg.antex).is_file():
+        raise CdgpsError(f"{cfg.path}: [gnss] antex (--antex): {cfg.antex}: cannot read: "
+                         f"{'a directory' if Path(cfg.antex).is_dir() else 'no such file'}")
     return named_antennas_known(cfg.antex, {a.name: a.antenna_type for a in cfg.antennas},
                                 {a.name: f"[gnss.antennas.{a.name}] antenna_type (--antenna {a.name}=TYPE)"
                                  for a in cfg.antennas})

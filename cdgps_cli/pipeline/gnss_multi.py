@@ -688,7 +688,7 @@ def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> di
     """{"base": model, "rover": model} of option ``antex`` (:func:`~cdgps_cli.pipeline.antenna_models.antenna_models`;
     each receiver's antenna is its option's, ``base_antenna`` / ``rover_antenna``, or its RINEX header's)."""
     return antenna_models(opt["antex"], {"base": opt["base_antenna"], "rover": opt["rover_antenna"]}, headers, paths,
-                          warnings, {w: f"{w}_antenna (--{w}-antenna)" for w in ("base", "rover")})
+                          warnings, {w: f"--{w}-antenna" for w in ("base", "rover")})
 
 
 def is_ubx_log(path) -> bool:

@@ -232,6 +232,8 @@ def test_a_run_s_antenna_problems_are_named_before_anything_is_written(pco_pair,
         (cfg.replace("ROVERANT NONE", "L1ONLY NONE"), ("antenna L1ONLY NONE", "has no calibration for G:L2",
                                                        "[gnss] signals")),
     )
+    cases += ((cfg.replace('antex = "r.atx"', 'antex = "absent.atx"'),
+               ("bad3.toml: [gnss] antex", "absent.atx: cannot read: no such file")),)
     for k, (text, words) in enumerate(cases):
         p = d / f"bad{k}.toml"
         p.write_text(text)
@@ -300,8 +302,9 @@ def test_ingest_takes_the_antex_file_and_the_types_from_the_command_line(pco_pai
     common = ("ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_pco.obs'}",
               "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "-q")
     r = run_cli(*common, "--antex", d / "r.atx", "--antenna", "base=none", "--antenna", "rover=ROVERANT NONE",
-                "-o", d / "cli.mcap")
+                "-o", d / "cli.mcap", "--json")
     assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["antennas"] == {"antex": "r.atx", "receivers": {"base": None, "rover": "ROVERANT NONE"}}
     r = run_cli("init", d / "cli.mcap", "-o", d / "cli.json", "-q")
     assert r.exit_code == 0, r.output
     got = json.loads((d / "cli.json").read_text())
@@ -312,3 +315,21 @@ def test_ingest_takes_the_antex_file_and_the_types_from_the_command_line(pco_pai
     out = d / "cli_bad.mcap"
     r = run_cli(*common, "--antenna", "rover=ROVERANT NONE", "-o", out)
     assert r.exit_code == 2 and "no ANTEX file" in r.output and not out.exists(), r.output
+
+
+def test_an_antenna_named_with_a_third_word_is_refused(pco_pair, tmp_path):
+    """IGS types hold no space: "LEIAR10 NONE junk" took LEIAR10's calibration, the third word dropped unsaid (a
+    sweep of real files); now refused naming the option, in every command."""
+    d = pco_pair
+    out = tmp_path / "b.json"
+    r = run_cli("baseline", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_pco.obs'}",
+                "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "-o", out, "--antex", d / "r.atx", "--antenna",
+                "rover=ROVERANT NONE junk", "--antenna", "base=none")
+    flat = " ".join(r.output.split())
+    assert r.exit_code == 2 and "expected an antenna type and at most its radome" in flat and "got 3 words" in flat
+    assert not out.exists()
+    out = tmp_path / "run.mcap"
+    r = run_cli("ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_pco.obs'}",
+                "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "--antex", d / "r.atx", "--antenna",
+                "rover=ROVERANT NONE junk", "-o", out)
+    assert r.exit_code == 2 and "got 3 words" in " ".join(r.output.split()) and not out.exists(), r.output

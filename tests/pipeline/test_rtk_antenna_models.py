@@ -119,7 +119,7 @@ def test_rtk_takes_the_antennas_from_the_headers_or_as_named(tmp_path):
     # an antenna the file has not, an antenna named without a file, a file that is no ANTEX: exit 2, nothing written
     only = _antex_for_delf_zegv(tmp_path, {"TRM29659.00     NONE": 92.0})
     for extra, words in ((("--antex", only), ("no calibration of", "SEPCHOKE_B3E6 SPKE", "--rover-antenna")),
-                         (("--base-antenna", "X"), ("base_antenna (--base-antenna) 'X': no --antex file",)),
+                         (("--base-antenna", "X"), ("--base-antenna 'X': no --antex file",)),
                          (("--antex", DATA / "delf0010.21d"), ("not an ANTEX file",))):
         out = tmp_path / "bad.csv"
         r = run_cli(*args, "-o", out, *extra)
