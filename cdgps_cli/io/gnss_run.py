@@ -1532,8 +1532,9 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
                         master_position=None, master_header_check=None, signals=None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position); ``signals`` (names) become ``[gnss] signals``
-    unless they are GPS L1 alone (the GPS L1 path, no key).  The master defaults to the first
-    RINEX antenna with a header position (or a UBX log with an RTCM 1005/1006 station position);
+    unless they are GPS L1 alone (the GPS L1 path, no key).  The master defaults to a UBX log with an RTCM
+    1005/1006 station position (a receiver that broadcasts its position is a base station), else the first RINEX
+    antenna with a header position (said in ``notes``);
     paths are written relative to ``relative_to``.  A UBX master's ``position_ecef_m`` is the
     RTCM 1005/1006 antenna reference point, else the mean single-point position (said in the
     comments and appended to ``notes``).  A UBX log that lost data (bad checksums, skipped bytes, a cut
@@ -1578,7 +1579,13 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         what = ", ".join(f"{int(per[c])} {system_list(c)}" for c in NAV_SYSTEMS if c in per) or "no"
         comments.append(f"nav {Path(p).name}: {what} ephemerides of {nav['sat'].nunique()} satellites, toe "
                         f"{span_text(nav['toe_gps_s'])}")
-    master = master or (with_pos[0] if with_pos else next(iter(files)))
+    rtcm = [n for n in ubx_rx if n in positions]          # a log with RTCM 1005/1006: a base station by its role
+    chosen = rtcm[0] if rtcm else (with_pos[0] if with_pos else next(iter(files)))
+    if master is None and notes is not None and len(files) > 1:
+        why = ("its log broadcasts its position (RTCM 1005/1006): a base station" if chosen in rtcm else
+               "the first RINEX file with a header position" if chosen in with_pos else "the first receiver given")
+        notes.append(f"master {chosen}: {why}; give --master to choose another")
+    master = master or chosen
     if master not in files:
         raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
     if master in ubx_rx and master not in positions:

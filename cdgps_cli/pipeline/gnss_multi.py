@@ -692,15 +692,24 @@ def _antenna_models(opt: dict, headers: dict, paths: dict, warnings: list) -> di
 
 
 def is_ubx_log(path) -> bool:
-    """Whether the file is a u-blox log (UBX frames) rather than a RINEX text file: it is not compressed (the
-    RINEX readers open gzip / compress / bzip2 / zip files, whose bytes may hold a UBX sync word by chance), its
-    first line is not a RINEX header line and a UBX sync word appears in its first 64 KiB."""
+    """Whether the file is a u-blox log (UBX frames) rather than a RINEX text file: plain or gzip-compressed (the
+    other compressions are the RINEX readers': compress, bzip2, zip), its first line (decompressed) not a RINEX
+    header line and a UBX sync word in its first 64 KiB."""
     try:
         with open(path, "rb") as f:
             head = f.read(65536)
     except OSError as exc:
         raise CdgpsError(f"{path}: cannot read ({exc.strerror})") from None
-    if head.startswith(COMPRESSED_MAGIC):
+    if head.startswith(b"\x1f\x8b"):           # gzip: a u-blox log as RINEX files are, judged by its first 64 KiB
+        import gzip  # noqa: PLC0415
+        import zlib  # noqa: PLC0415
+
+        try:
+            with gzip.open(path, "rb") as g:
+                head = g.read(65536)
+        except (OSError, EOFError, zlib.error):
+            return False                         # (the RINEX reader names a damaged archive)
+    elif head.startswith(COMPRESSED_MAGIC):
         return False
     first = head.split(b"\n", 1)[0]
     return b"RINEX VERSION / TYPE" not in first and b"\xb5\x62" in head

@@ -578,3 +578,32 @@ def test_record_keys_equal_the_decoded_records():
         sfrbx._gps_record_key, sfrbx._galileo_record_key, sfrbx._beidou_record_key = orig
         sfrbx.BATCH = batch
     assert seen["G"] >= 50 and seen["E"] >= 20 and seen["C"] >= 20
+
+
+def test_config_takes_the_log_that_broadcasts_its_position_as_master(tmp_path):
+    """A u-blox base whose log carries RTCM 1005 beside a RINEX rover whose header has a (converter's, metres off)
+    position: the RINEX file was taken as master and the base solved as the rover, 8 m off (a sweep of real files,
+    session 30); the log that broadcasts its station position is the master now, and the notes say why."""
+    import json
+
+    from click.testing import CliRunner
+
+    from cdgps_cli.cli.commands import main
+
+    b, r = _pair(tmp_path)
+    rinex = tmp_path / "rover.obs"
+    lines = ["     3.04           OBSERVATION DATA    G: GPS              RINEX VERSION / TYPE",
+             "  3957199.0000  3310205.0000  3737711.0000                  APPROX POSITION XYZ".replace(
+                 "  3957199.0000", " -3957199.0000"),
+             "G    2 C1C L1C                                              SYS / # / OBS TYPES",
+             "                                                            END OF HEADER",
+             "> 2024 08 14 14 09 53.0000000  0  1",
+             "G06  20000000.000   105000000.000"]
+    rinex.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "cfg.toml"
+    res = CliRunner().invoke(main, ["config", "--ubx", f"base={b}", "--rinex", f"rover={rinex}", "-o", str(out),
+                                    "--json", "-q"])
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)
+    assert got["config"]["master"] == "base"
+    assert any(n.startswith("master base: its log broadcasts its position (RTCM 1005/1006)") for n in got["notes"])

@@ -233,6 +233,28 @@ def test_rtk_names_what_a_cut_ublox_log_lost(tmp_path):
     assert not [w for w in whole["warnings"] if "skipped:" in w]
 
 
+def test_rtk_reads_a_gzipped_ublox_log_as_the_log(tmp_path):
+    """A u-blox log gzipped, as `ingest` reads it: `rtk` took it for a RINEX file and refused "not a RINEX file"
+    (a sweep of real u-blox files, session 30); the same solution as the plain log."""
+    import gzip
+
+    from cdgps_cli.pipeline import gnss_multi
+
+    walk = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "ublox-walk"
+    if not walk.exists():
+        pytest.skip("../shared/data/real-pairs/ublox-walk absent")
+    gz = tmp_path / "walk.ubx.gz"
+    gz.write_bytes(gzip.compress((walk / "gnss_1730.ubx").read_bytes(), mtime=0))
+    xyz = (-1276975.6547, -4717238.8712, 4087235.6076)
+    rover = walk / "gnss_1730_convbin.obs"
+    got = [rtk_from_files(b, rover, [], tmp_path / f"{k}.csv", base_xyz_m=xyz, options={"signals": ("G:L1",)})
+           for k, b in (("gz", gz), ("plain", walk / "gnss_1730.ubx"))]
+    assert gnss_multi.is_ubx_log(gz) and not gnss_multi.is_ubx_log(REPO_ROOT / "tests" / "data" / "P433_lli_subset.crx")
+    assert got[0]["epochs"] == got[1]["epochs"] > 0 and got[0]["fixed_epochs"] == got[1]["fixed_epochs"]
+    assert [ln for ln in (tmp_path / "gz.csv").read_text().splitlines() if not ln.startswith("#")] == \
+        [ln for ln in (tmp_path / "plain.csv").read_text().splitlines() if not ln.startswith("#")]
+
+
 def test_auto_signals_name_a_damaged_navigation_file(tmp_path):
     # --signals auto used to swallow every navigation-file error: a cut or garbled nav file was reported as
     # 'share no signal with ephemerides in NAV' (no line, no reason); only 'no records of these systems' is passed over
