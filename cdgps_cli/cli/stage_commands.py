@@ -1092,6 +1092,8 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
         if k:
             _say(ctx, f"    single-epoch scatter about static over {v['kinematic_epochs']} epochs: RMS E {k['e'] * 1e3:.1f} "
                       f"N {k['n'] * 1e3:.1f} U {k['u'] * 1e3:.1f} mm")
+    for note in s.get("notes", []):
+        _say(ctx, f"  note: {note}")
     for ev in s["event_list"][:20]:
         _say(ctx, f"  {_gps_time(ev['time_s'])} {ev['antenna']}/{ev['transmitter']}: {ev['kind']} → {ev['action']}")
     if len(s["event_list"]) > 20:
