@@ -311,7 +311,7 @@ def ubx_header_info(p: Path, name: str, info_u: dict, raw: pd.DataFrame) -> tupl
     header = {"path": str(p), "format": "UBX RXM-RAWX", "marker_name": name,
               "approx_position_xyz_m": base["arp_ecef_m"] if base else None,
               "position_source": f"RTCM {base['message']} ARP (station {base['station_id']})" if base else None,
-              "receiver_type": "u-blox (RXM-RAWX)", "interval_s": nominal_interval_s(raw["time_gps_s"].to_numpy())}
+              "receiver_type": "u-blox (RXM-RAWX)", "interval_s": sampling_interval_s(raw["time_gps_s"].to_numpy())}
     return _json_safe(header), _json_safe(info_u)
 
 

@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
+from cdgps_cli.core.gps_time import gps_time_str, sampling_interval_s
 from cdgps_cli.io.log_sequence import join_tables
 
 __all__ = ["check_same_receiver", "refuse_another_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
@@ -48,7 +48,7 @@ def pieces_text(paths) -> str:
 
 
 def _interval(rx) -> float:
-    return nominal_interval_s(rx.raw["time_gps_s"].to_numpy())
+    return sampling_interval_s(rx.raw["time_gps_s"].to_numpy())
 
 
 def check_same_receiver(name: str, rxs: list, paths: list) -> list[str]:
@@ -155,7 +155,7 @@ def join_receivers(name: str, rxs: list, paths: list, ubx_nav=None) -> tuple:
     pieces = [(Path(p).name if len({Path(q).name for q in paths}) == len(paths) else str(p), rx.raw)
               for p, rx in zip(paths, rxs)]
     t_all = np.concatenate([rx.raw["time_gps_s"].to_numpy(dtype=np.float64) for rx in rxs])
-    raw, rep, order = join_tables(pieces, "time_gps_s", nominal_interval_s(t_all), gps_time_str, what=name)
+    raw, rep, order = join_tables(pieces, "time_gps_s", sampling_interval_s(t_all), gps_time_str, what=name)
     rxs_o, paths_o = [rxs[i] for i in order], [str(paths[i]) for i in order]
     warnings = check_same_receiver(name, rxs_o, paths_o) + rep.warnings
     rx0 = rxs_o[0]
@@ -167,7 +167,7 @@ def join_receivers(name: str, rxs: list, paths: list, ubx_nav=None) -> tuple:
     if "time_last_obs_gps_s" in header:
         header["time_last_obs_gps_s"] = rxs_o[-1].header.get("time_last_obs_gps_s")
     if rx0.format == "ubx":
-        header["interval_s"] = nominal_interval_s(raw["time_gps_s"].to_numpy())
+        header["interval_s"] = sampling_interval_s(raw["time_gps_s"].to_numpy())
         base = next((r.info["rtcm_base"] for r in reversed(rxs_o) if r.info.get("rtcm_base")), None)
         if base:            # the station position of the last RTCM 1005/1006, as for one log
             header["approx_position_xyz_m"] = list(base["arp_ecef_m"])

@@ -164,3 +164,30 @@ def test_consecutive_ubx_logs_are_one_byte_stream(tmp_path):
     body = [ln for ln in (tmp_path / "one.csv").read_text().splitlines() if not ln.startswith("#")]
     assert len(body) > 100
     assert [ln for ln in (tmp_path / "many.csv").read_text().splitlines() if not ln.startswith("#")] == body
+
+
+def test_a_gap_between_files_of_a_base_logging_with_gaps_counts_its_epochs_at_its_sampling(tmp_path):
+    """A base that logs with gaps (1–8 s apart, sampled at 1 s) in two files with 60 s between them: the epochs
+    missing are counted at the interval the receiver samples at, not at its median spacing (a sweep of real
+    u-blox files: "gap of 313 s (103 epochs missing)" for a 1 s log)."""
+    import re
+
+    from cdgps_cli.sim.rinex_edit import edit_rinex3_obs
+    from tests._shared import MOSAIC_DIR, MOSAIC_T0, write_gappy_mosaic_pair
+
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    base, rover = write_gappy_mosaic_pair(tmp_path)
+    text = base.read_text()
+    first = edit_rinex3_obs(text, keep=lambda t: t < MOSAIC_T0 + 100)
+    second = edit_rinex3_obs(text, keep=lambda t: t >= MOSAIC_T0 + 160)
+    (tmp_path / "b1.obs").write_text(first)
+    (tmp_path / "b2.obs").write_text(second)
+    r = run_cli("ingest", "--rinex", f"base={tmp_path / 'b1.obs'}", "--rinex", f"base={tmp_path / 'b2.obs'}",
+                "--rinex", f"rover={rover}", "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "-o",
+                tmp_path / "run.mcap", "--json", "-q")
+    assert r.exit_code == 0, r.output
+    gap = [w for w in json.loads(r.stdout)["warnings"] if "gap of" in w]
+    assert len(gap) == 1, gap
+    g, missing = (float(x) for x in re.search(r"gap of ([\d.]+) s \((\d+) epochs missing\)", gap[0]).groups())
+    assert missing == round(g) - 1, gap[0]                 # at 1 s, whatever the base's median spacing
