@@ -525,8 +525,15 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
         kind, p = files[n]
         say(f"reading signals {', '.join(signals)} of {p} ({n}) …")
         paths = (pieces or {}).get(n) or [p]
-        tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
-                for q in paths]
+        rejoined = kind == "ubx" and len(paths) > 1 and isinstance(rx.info, dict) and "record_problems" in rx.info
+        if rejoined:                 # the raw table is the one byte stream's (_rejoin_cut_frames): the signals too
+            from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
+
+            tabs, paths = [read_ubx_signals(pieces_text(paths), signals,
+                                            data=b"".join(ubx_bytes(q) for q in paths))], [pieces_text(paths)]
+        else:
+            tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
+                    for q in paths]
         if kind == "ubx":             # RXM-RAWX's freqId: the numbers a RINEX file without its slots needs
             for t in tabs:
                 for sat, k in glonass_numbers(t).items():
@@ -769,6 +776,7 @@ def _rejoin_cut_frames(name: str, rx: GnssReceiver, join: dict, paths: list, war
            if f.get("truncated_tail_bytes")]
     keep = {k: rx.info[k] for k in ("files", "join") if k in rx.info}
     rx.raw, rx.nav = one.raw, one.nav
+    # (``record_problems``, present only here, also tells the signal tables to read this one stream)
     rx.info = {**one.info, **keep, "path": rx.info.get("path"), "record_problems": integrity_problems({**one.info, **where})}
     for f in rx.info["files"]:
         f["problems"] = []
