@@ -768,8 +768,17 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
     tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
                                      gps_time_str, what=f"{pieces_text(files)} ({who})")
     refuse_another_receiver(who, [reads[i][0] for i in order], [files[i] for i in order], ONE_RECEIVER_FIELDS)
-    if ubx:          # one byte stream in time order: a frame cut by a file boundary is whole again, as ingest joins
-        return _ubx_stream([files[i] for i in order], sigs, who, warnings)
+    if ubx and not report.overlaps:     # one byte stream in time order: a frame cut by a file boundary is whole again
+        try:
+            return _ubx_stream([files[i] for i in order], sigs, who, warnings)
+        except CdgpsError as exc:       # the stream goes back in time (a piece repeated under another name …)
+            if "earlier than the previous one" not in str(exc):
+                raise
+    if ubx:                              # logs that repeat one another's epochs: joined table by table, as RINEX
+        said = [w for w in said if "truncated frame" not in w]
+        warnings.append(f"{pieces_text(files)} ({who}): the u-blox logs repeat one another's epochs: joined log by log "
+                        f"(an epoch repeated kept once, from the earlier log); a frame cut at a log's end is not "
+                        f"joined again")
     warnings.extend(said + report.warnings)
     tab.attrs = {}
     return {**reads[order[0]][0], "file_epochs": _joined_file_epochs([h for h, _ in reads])}, tab

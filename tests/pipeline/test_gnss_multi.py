@@ -255,6 +255,33 @@ def test_rtk_reads_a_gzipped_ublox_log_as_the_log(tmp_path):
         [ln for ln in (tmp_path / "plain.csv").read_text().splitlines() if not ln.startswith("#")]
 
 
+def test_rtk_joins_ublox_logs_that_repeat_epochs_log_by_log(tmp_path):
+    """Two u-blox logs of one receiver whose second repeats the first's last 40 epochs: `rtk` read them as one byte
+    stream, which goes back in time, and refused ("epochs must be in time order", naming no file) where `ingest`
+    takes them (a sweep of real files, session 30); now joined log by log, the repeats kept once, the same
+    solution as the whole log."""
+    from cdgps_cli.io.ubx_frames import split_stream
+
+    walk = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "ublox-walk"
+    if not walk.exists():
+        pytest.skip("../shared/data/real-pairs/ublox-walk absent")
+    data = (walk / "gnss_1730.ubx").read_bytes()
+    off = [o for o, cls, mid, _ in split_stream(data)[0] if (cls, mid) == (0x02, 0x15)]
+    (tmp_path / "a.ubx").write_bytes(data[:off[300]])
+    (tmp_path / "b.ubx").write_bytes(data[off[260]:])
+    xyz = (-1276975.6547, -4717238.8712, 4087235.6076)
+    rover = walk / "gnss_1730_convbin.obs"
+    opt = {"signals": ("G:L1",)}
+    two = rtk_from_files([tmp_path / "a.ubx", tmp_path / "b.ubx"], rover, [], tmp_path / "two.csv", base_xyz_m=xyz,
+                         options=opt)
+    one = rtk_from_files(walk / "gnss_1730.ubx", rover, [], tmp_path / "one.csv", base_xyz_m=xyz, options=opt)
+    assert any("repeat one another's epochs" in w for w in two["warnings"]), two["warnings"]
+    assert any("repeats 40 epoch(s)" in w for w in two["warnings"]), two["warnings"]
+    rows = [[ln for ln in (tmp_path / f"{k}.csv").read_text().splitlines() if not ln.startswith("#")]
+            for k in ("two", "one")]
+    assert rows[0] == rows[1] and len(rows[0]) > 100
+
+
 def test_auto_signals_name_a_damaged_navigation_file(tmp_path):
     # --signals auto used to swallow every navigation-file error: a cut or garbled nav file was reported as
     # 'share no signal with ephemerides in NAV' (no line, no reason); only 'no records of these systems' is passed over
