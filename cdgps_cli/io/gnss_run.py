@@ -748,6 +748,9 @@ def _ingest_nav(cfg: GnssConfig, nav_list: list, nav_ahead, receivers: dict, fil
 
 
 _LOSS_OFFSETS = ("bad_frame_offsets", "undecodable_frame_offsets", "bad_rtcm_offsets")
+#: a gap between two u-blox logs of one receiver at most this many sampling intervals (or twice the log's own longest
+#: spacings): the epoch a cut frame held, not a log missing between them
+MAX_CUT_GAP_STEPS = 2.5
 
 
 def _rejoin_cut_frames(name: str, rx: GnssReceiver, join: dict, paths: list, warnings: list) -> None:
@@ -758,6 +761,14 @@ def _rejoin_cut_frames(name: str, rx: GnssReceiver, join: dict, paths: list, war
     files one by one; the losses left (``info["record_problems"]``) name the file and byte."""
     files = rx.info.get("files") or []
     if join["overlaps"] or not any(f.get("truncated_tail_bytes") for f in files[:-1]):
+        return
+    # a frame cut by a rotation leaves an epoch missing at that boundary, a gap like the log's own; a longer one is a
+    # log missing between the two files, whose bytes are not each other's continuation (joined, they made a frame
+    # that fails its checksum): then no file is joined again
+    t = np.unique(rx.raw["time_gps_s"].to_numpy(dtype=np.float64))
+    own = float(np.percentile(np.diff(t), 99)) if t.size > 2 else 0.0
+    limit = max(MAX_CUT_GAP_STEPS * sampling_interval_s(t), 2.0 * own)
+    if any(g["gap_s"] > limit for g in join["gaps"]):
         return
     from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
 

@@ -295,6 +295,24 @@ def test_ubx_frame_cut_by_file_rotation_is_joined_again(tmp_path, ubx_whole):
     assert s["joins"]["U"]["gaps"] == [] and "gap of" not in r.output      # the cut epochs are found again
 
 
+def test_ubx_pieces_with_one_missing_are_not_joined_across_the_hole(tmp_path):
+    """Three pieces cut inside frames, the middle one missing: the first's cut frame and the third's head are not one
+    frame, and joining them as one byte stream made a frame failing its checksum, reported as lost data, under a
+    claim of "frames joined again" between logs minutes apart (a sweep of real files, session 30).  Now nothing is
+    joined: each piece's own loss (its truncated tail) is said, and the gap."""
+    data = UBX_WALK.read_bytes()
+    off = _rawx_offsets(data)
+    paths = _split_bytes(data, tmp_path, "hole", [off[150] + 60, off[330] + 9])
+    paths[1].unlink()
+    r = _cli("ingest", "--ubx", f"U={tmp_path}/hole_*.ubx", "-o", tmp_path / "p.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert "frames_joined_across_files" not in s["joins"]["U"] and "joined again" not in r.output
+    assert not any("checksum" in p for p in s["integrity"]["U"]["problems"]), s["integrity"]["U"]["problems"]
+    assert any("truncated frame at the end" in p for p in s["integrity"]["U"]["problems"])
+    assert len(s["joins"]["U"]["gaps"]) == 1
+
+
 def test_ubx_pieces_with_gnss_signals_keep_the_whole_logs_signal_table(tmp_path):
     """With ``[gnss] signals`` the multi-signal table (here GPS L1 + L2C, lock times and half-cycle
     flags) of the pieces is the whole log's too."""
