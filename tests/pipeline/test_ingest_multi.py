@@ -296,13 +296,11 @@ def test_ubx_frame_cut_by_file_rotation_is_joined_again(tmp_path, ubx_whole):
 
 
 def test_ubx_pieces_with_one_missing_are_not_joined_across_the_hole(tmp_path):
-    """Three pieces cut inside frames, the middle one missing: the first's cut frame and the third's head are not one
-    frame, and joining them as one byte stream made a frame failing its checksum, reported as lost data, under a
-    claim of "frames joined again" between logs minutes apart (a sweep of real files, session 30).  Now nothing is
-    joined: each piece's own loss (its truncated tail) is said, and the gap."""
+    """Three pieces cut inside frames, the middle one missing: nothing is joined again across the hole, each piece's
+    own loss (its truncated tail) is said, and the gap (the gate itself: the test below)."""
     data = UBX_WALK.read_bytes()
     off = _rawx_offsets(data)
-    paths = _split_bytes(data, tmp_path, "hole", [off[150] + 60, off[330] + 9])
+    paths = _split_bytes(data, tmp_path, "hole", [off[150] + 60, off[330] + 60])
     paths[1].unlink()
     r = _cli("ingest", "--ubx", f"U={tmp_path}/hole_*.ubx", "-o", tmp_path / "p.mcap", "--json")
     assert r.exit_code == 0, r.output
@@ -311,6 +309,29 @@ def test_ubx_pieces_with_one_missing_are_not_joined_across_the_hole(tmp_path):
     assert not any("checksum" in p for p in s["integrity"]["U"]["problems"]), s["integrity"]["U"]["problems"]
     assert any("truncated frame at the end" in p for p in s["integrity"]["U"]["problems"])
     assert len(s["joins"]["U"]["gaps"]) == 1
+
+
+def test_the_byte_stream_join_is_tried_only_between_logs_that_follow_one_another(tmp_path):
+    """The gate of ``_rejoin_cut_frames``: a 287 s gap between two pieces of a 1 s log (a piece missing: the real M8P
+    rover's case, where the join made a frame failing its checksum under a "joined again" claim) stops it before any
+    byte is read; a 2 s gap (the epoch a cut frame held) and a base logging every 1–8 s with a 6 s gap go on to
+    read the pieces (here absent: the read raises)."""
+    import numpy as np
+    import pandas as pd
+
+    from cdgps_cli.io.gnss_run import GnssReceiver, _rejoin_cut_frames
+
+    def rx(times):
+        files = [{"file": "a.ubx", "truncated_tail_bytes": 41}, {"file": "b.ubx"}]
+        return GnssReceiver("r", "ubx", "a.ubx", {}, pd.DataFrame({"time_gps_s": np.asarray(times, float)}),
+                            {"files": files})
+    missing = [tmp_path / "a.ubx", tmp_path / "b.ubx"]
+    one_s = np.r_[np.arange(0.0, 300.0), np.arange(587.0, 900.0)]
+    _rejoin_cut_frames("r", rx(one_s), {"overlaps": [], "gaps": [{"gap_s": 287.0}]}, missing, [])    # no read
+    for times, gap in ((np.r_[np.arange(0.0, 300.0), np.arange(302.0, 600.0)], 2.0),
+                       (np.cumsum(np.tile([1.0, 3.0, 8.0, 2.0], 100)), 6.0)):
+        with pytest.raises((OSError, Exception)):
+            _rejoin_cut_frames("r", rx(times), {"overlaps": [], "gaps": [{"gap_s": gap}]}, missing, [])
 
 
 def test_ubx_pieces_with_gnss_signals_keep_the_whole_logs_signal_table(tmp_path):
