@@ -1488,6 +1488,14 @@ def gnss_info_json(info: dict) -> bytes:
 # starter configs from the files' headers
 
 
+def _first_file(p, what: str):
+    """The file a starter config reads the header of: ``p``, or the first (by name) of the files a quoted glob
+    pattern names (the config keeps the pattern: ``ingest`` joins the files in time order)."""
+    from cdgps_cli.io.log_sequence import is_pattern  # noqa: PLC0415
+
+    return expand_paths([str(p)], what)[0] if is_pattern(str(p)) else p
+
+
 def _rinex_comments(n: str, p, comments: list) -> GnssReceiver:
     """A starter config's comment lines on antenna ``n``'s RINEX file ``p`` (marker, receiver, antenna, span, header
     position); returns the file read (GPS L1)."""
@@ -1577,14 +1585,14 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     with_pos = []
     rinex_rx = {}
     for n, p in rinex.items():
-        rinex_rx[n] = _rinex_comments(n, p, comments)
+        rinex_rx[n] = _rinex_comments(n, _first_file(p, f"--rinex {n}"), comments)
         if header_position_m(rinex_rx[n].header) is not None:
             with_pos.append(n)
         files[n] = ("rinex", rel(p))
     positions: dict = {}
     ubx_rx = {}
     for n, p in ubx.items():
-        ubx_rx[n] = _ubx_comments(n, p, comments, warnings)
+        ubx_rx[n] = _ubx_comments(n, _first_file(p, f"--ubx {n}"), comments, warnings)
         base = ubx_rx[n].info.get("rtcm_base")
         if base:
             positions[n] = tuple(base["arp_ecef_m"])

@@ -191,3 +191,18 @@ def test_a_gap_between_files_of_a_base_logging_with_gaps_counts_its_epochs_at_it
     assert len(gap) == 1, gap
     g, missing = (float(x) for x in re.search(r"gap of ([\d.]+) s \((\d+) epochs missing\)", gap[0]).groups())
     assert missing == round(g) - 1, gap[0]                 # at 1 s, whatever the base's median spacing
+
+
+def test_config_takes_a_quoted_glob_of_an_antenna_s_files(tmp_path):
+    """`cdgps config --rinex 'A=PATTERN'`: the header read from the first file, the pattern written into the config
+    (which `ingest` then joins); it said "cannot read: No such file" of the pattern (a sweep of real files)."""
+    shared = REPO_ROOT.parent / "shared" / "data" / "rinex"
+    if not (shared / "30400920.05o").exists():
+        pytest.skip("../shared/data/rinex absent")
+    out = tmp_path / "cfg.toml"
+    r = run_cli("config", "--rinex", f"a={shared}/3040*.05o", "--rinex", f"b={shared / '07590920.05o'}", "--nav",
+                shared / "30400920.05n", "-o", out, "-q")
+    assert r.exit_code == 0, r.output
+    assert re.search(r'rinex = ".*3040\*\.05o"', out.read_text()), out.read_text()
+    r = run_cli("ingest", "--config", out, "-o", tmp_path / "run.mcap", "-q")
+    assert r.exit_code == 0, r.output
