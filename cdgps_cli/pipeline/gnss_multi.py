@@ -801,7 +801,16 @@ def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.D
     from cdgps_cli.io.gnss_sequence import ubx_bytes  # noqa: PLC0415
 
     name = pieces_text(files)
-    return _ubx_receiver(name, _ubx_table(name, b"".join(ubx_bytes(p) for p in files)), sigs, who, warnings)
+    parts = [ubx_bytes(p) for p in files]
+    info, tab, nav = _ubx_table(name, b"".join(parts))
+    starts = np.cumsum([0] + [len(b) for b in parts])
+
+    def in_piece(o: int) -> str:                  # a stream offset as the file and byte it is in
+        i = int(np.searchsorted(starts, o, side="right")) - 1
+        return f"{Path(files[i]).name} byte {o - starts[i]}"
+    where = {k: [in_piece(int(o)) for o in info[k]] for k in ("bad_frame_offsets", "undecodable_frame_offsets",
+                                                               "bad_rtcm_offsets") if info.get(k)}
+    return _ubx_receiver(name, ({**info, **where}, tab, nav), sigs, who, warnings)
 
 
 def _ubx_receiver(name, decoded: tuple, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:

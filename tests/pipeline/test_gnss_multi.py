@@ -282,6 +282,25 @@ def test_rtk_joins_ublox_logs_that_repeat_epochs_log_by_log(tmp_path):
     assert rows[0] == rows[1] and len(rows[0]) > 100
 
 
+def test_rtk_names_the_log_and_byte_of_a_loss_in_consecutive_logs(tmp_path):
+    """A frame failing its checksum in the second of two u-blox logs read as one stream: the warning names that log
+    and the byte in it (it gave the byte in the joined stream, naming no log; a sweep of real files)."""
+    from cdgps_cli.io.ubx_frames import split_stream
+
+    walk = REPO_ROOT / ".." / "shared" / "data" / "real-pairs" / "ublox-walk"
+    if not walk.exists():
+        pytest.skip("../shared/data/real-pairs/ublox-walk absent")
+    data = bytearray((walk / "gnss_1730.ubx").read_bytes())
+    off = [o for o, cls, mid, _ in split_stream(bytes(data))[0] if (cls, mid) == (0x02, 0x15)]
+    data[off[400] + 20] ^= 0xFF                                 # a payload byte of a frame in the second log
+    (tmp_path / "a.ubx").write_bytes(bytes(data[:off[300]]))
+    (tmp_path / "b.ubx").write_bytes(bytes(data[off[300]:]))
+    s = rtk_from_files([tmp_path / "a.ubx", tmp_path / "b.ubx"], walk / "gnss_1730_convbin.obs", [], tmp_path / "x.csv",
+                       base_xyz_m=(-1276975.6547, -4717238.8712, 4087235.6076), options={"signals": ("G:L1",)})
+    lost = [w for w in s["warnings"] if "failing the checksum" in w]
+    assert len(lost) == 1 and f"b.ubx byte {off[400] - off[300]}" in lost[0], s["warnings"]
+
+
 def test_auto_signals_name_a_damaged_navigation_file(tmp_path):
     # --signals auto used to swallow every navigation-file error: a cut or garbled nav file was reported as
     # 'share no signal with ephemerides in NAV' (no line, no reason); only 'no records of these systems' is passed over
