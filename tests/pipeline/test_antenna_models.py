@@ -96,18 +96,24 @@ def test_a_calibration_survives_its_json_round_trip(antex):
 # ---- the real mosaic pair, the rover given a known offset
 
 
-def _pcv_change(nav, xyz, pcv_mm):
+def _pcv_change(nav, xyz, pcv_mm, times):
     """``range_change_m`` of a variation ``pcv_mm`` on :data:`ZEN` (the same on every band): each GPS satellite's
-    zenith angle from its broadcast orbit at the epoch (0 for the other systems' satellites)."""
+    zenith angle from its broadcast orbit at the epoch (0 for the other systems' satellites), every satellite's
+    angles at the file's epochs ``times`` computed at once."""
+    times = np.asarray(times, float)
+    pcv = {}
+    for s in sorted(set(nav["sat"])):
+        try:
+            p, _ = sat_position_ecef(select_ephemeris(nav, s, times), times)
+        except Exception:                                   # (a satellite not covered at every epoch: none)
+            continue
+        v = ecef_to_enu(np.asarray(p, float).reshape(-1, 3), xyz)
+        zen = np.degrees(np.arccos(v[:, 2] / np.linalg.norm(v, axis=1)))
+        pcv[s] = np.interp(zen, ZEN, pcv_mm) * 1e-3
+
     def change(t, sats):
-        out = np.zeros(len(sats))
-        for k, s in enumerate(sats):
-            if not str(s).startswith("G"):
-                continue
-            p, _ = sat_position_ecef(select_ephemeris(nav, s, np.array([t])), np.array([t]))
-            v = ecef_to_enu(np.asarray(p, float).reshape(3), xyz)
-            out[k] = np.interp(np.degrees(np.arccos(v[2] / np.linalg.norm(v))), ZEN, pcv_mm) * 1e-3
-        return out
+        k = int(np.searchsorted(times, t))
+        return np.array([pcv[s][k] if s in pcv else 0.0 for s in sats])
     return change
 
 
@@ -128,7 +134,7 @@ def pco_pair(tmp_path_factory):
     xyz = np.asarray(read_rinex_obs(MOSAIC_DIR / "rover.obs")[0]["approx_position_xyz_m"], float)
     enu = np.array([PCO_MM[1], PCO_MM[0], PCO_MM[2]]) * 1e-3
     pco = range_change_of_motion(nav, xyz, lambda t: enu, epoch_times_gps_s(text))
-    pcv = _pcv_change(nav, xyz, PCV_L1_MM)
+    pcv = _pcv_change(nav, xyz, PCV_L1_MM, epoch_times_gps_s(text))
     edited = edit_rinex3_obs(text, range_change_m=lambda t, sats: pco(t, sats) + pcv(t, sats))
     (d / "rover_pco.obs").write_text(edited)
     (d / "rover_pco.obs.gz").write_bytes(gzip.compress(edited.encode(), mtime=0))    # read whole by ingest
