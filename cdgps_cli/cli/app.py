@@ -224,6 +224,19 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
     return out
 
 
+def _parse_antenna_types(items, name_word: str = "ANTENNA") -> dict:
+    """``--antenna NAME=TYPE`` options (``baseline``'s NAME, ``ingest``'s ANTENNA) → {name: antenna type, or none};
+    a later one for the same name wins."""
+    out = {}
+    for it in items:
+        name, sep, typ = it.partition("=")
+        if not sep or not name.strip() or not typ.strip():
+            raise CdgpsError(f"--antenna expects {name_word}=TYPE (e.g. base=\"TRM59800.80 SCIT\", or rover=none), "
+                             f"got {it!r}")
+        out[name.strip()] = typ.strip()
+    return out
+
+
 def _parse_named_files(items, option: str, name_word: str = "ANTENNA") -> dict:
     """ANTENNA=FILE options of ``ingest`` (--rinex/--ubx; ``baseline``'s NAME=PATH, ``name_word`` NAME) →
     {antenna: [file or pattern, …]}: an antenna repeated, or a quoted glob pattern, gives its consecutive files

@@ -10,6 +10,7 @@ import click
 from cdgps_cli.config.options import GNSS_DEFAULTS, X_AXIS_AZIMUTH_DEG
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _emit_json, main, _parse_named,
+                               _parse_antenna_types,
                                _parse_named_files, _write_json_atomic, _write_text_atomic)
 
 
@@ -109,11 +110,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     _named_by_flags(opt.validate, {k: flags[k] for k in changes if k in flags})
     rover = next(n for n in stations if n != mst)
     _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
-    for it in antenna:
-        name, sep, typ = it.partition("=")
-        if not sep or not name.strip() or not typ.strip():
-            raise CdgpsError(f"--antenna expects NAME=TYPE (e.g. 3040=\"TRM59800.80 SCIT\", or rover=none), got {it!r}")
-        types[name.strip()] = typ.strip()
+    types.update(_parse_antenna_types(antenna, "NAME"))
     unknown = sorted(set(types) - set(stations))
     if unknown:
         raise CdgpsError(f"--antenna {unknown[0]}: not one of the stations given ({', '.join(stations)})")

@@ -17,6 +17,7 @@ from cdgps_cli.io.states_layout import COVARIANCE_CHOICES as _STATES_COVARIANCE
 from cdgps_cli.io.states_layout import DEFAULT_COVARIANCE as _STATES_DEFAULT_COVARIANCE
 from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ as _STATES_PREVIEW_RATE_HZ
 from cdgps_cli.cli.app import (_echo, _warn, _say, _output_option, _emit_json, main, _parse_named_files,
+                               _parse_antenna_types,
                                _write_json_atomic, _with, _report_outputs)
 
 
@@ -219,13 +220,7 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
             raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
         cfg = parse_gnss_config(default_config_text(files, list(nav), master), "<generated config>")
     if antex or antenna:
-        types = {}
-        for it in antenna:
-            name, sep, typ = it.partition("=")
-            if not sep or not name.strip() or not typ.strip():
-                raise CdgpsError(f"--antenna expects ANTENNA=TYPE (e.g. base=\"TRM59800.80 SCIT\", or rover=none), got {it!r}")
-            types[name.strip()] = typ.strip()
-        cfg = with_antenna_options(cfg, antex, types)
+        cfg = with_antenna_options(cfg, antex, _parse_antenna_types(antenna))
     s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,
                     progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), strict=strict,
                     sensor_paths=list(sensor_logs) if sensor_logs else None)
