@@ -759,10 +759,13 @@ def spectra(ctx, states_mcap, gyro_mcap, coords, segment_s, overlap, pad, out_di
 def _peak_amplitude_text(p: dict) -> str:
     """A spectral peak's amplitude as the summary prints it: the whole-record fit ± its σ (mm for metres, the unit
     else), or, for a peak no steady sinusoid explains, the PSD's amplitude so marked."""
-    scale, unit = (1e3, " mm") if p["unit"] == "m" else (1.0, f" {p['unit']}" if p["unit"] not in (None, "1") else "")
-    if p.get("steady", True) and p.get("amplitude_sigma") is not None:
-        return f"amplitude {p['amplitude'] * scale:.3g} ± {p['amplitude_sigma'] * scale:.2g}{unit}"
-    return f"amplitude ≈ {p['amplitude_psd'] * scale:.3g}{unit} (PSD; not a steady sinusoid)"
+    from cdgps_cli.report.sensor_reports import peak_amplitude  # noqa: PLC0415
+
+    amp, sigma, unit, fit = peak_amplitude(p)
+    unit = f" {unit}" if unit else ""
+    if fit:
+        return f"amplitude {amp:.3g} ± {sigma:.2g}{unit}"
+    return f"amplitude ≈ {amp:.3g}{unit} (PSD; not a steady sinusoid)"
 
 
 @main.group(short_help="Sensor-test reports (markdown, JSON, HTML)")

@@ -268,6 +268,16 @@ def _plot_index(f: np.ndarray, fmin: float, fmax: float, points: int = 2000) -> 
     return np.unique(sel[0] + np.searchsorted(f[sel], want).clip(0, sel.size - 1))
 
 
+def peak_amplitude(p: dict) -> tuple[float, float | None, str, bool]:
+    """A spectral peak's amplitude as the summary, the figure and the report show it: (value, its σ or None, unit,
+    whether from the whole-record fit) — the fit and its σ for a steady sinusoid, else the PSD's amplitude; metres
+    in mm, a dimensionless coordinate without a unit."""
+    scale, unit = (1e3, "mm") if p.get("unit") == "m" else (1.0, "" if p.get("unit") in (None, "1") else p["unit"])
+    fit = bool(p.get("steady", True)) and p.get("amplitude_sigma") is not None
+    value = p["amplitude"] if fit else p.get("amplitude_psd", p["amplitude"])
+    return value * scale, (p["amplitude_sigma"] * scale if fit else None), unit, fit
+
+
 #: spectral peaks labelled in a PSD figure at most (more: their triangles alone)
 MAX_LABELLED_PEAKS = 6
 
@@ -286,8 +296,8 @@ def _mark_peaks(ax, res: dict, colour: dict, fmin: float, fmax: float) -> None:
         ax.plot([f0], [p["psd_peak"] * 1.6], marker="v", ms=6, color=colour[p["coordinate"]], ls="none")
         if not label:
             continue
-        amp = p["amplitude"] if p.get("steady", True) else p.get("amplitude_psd", p["amplitude"])
-        value = f"{amp * 1e3:.2f} mm" if p.get("unit") == "m" else f"{amp:.3g}"
+        amp, _, unit, _ = peak_amplitude(p)
+        value = f"{amp:.2f} mm" if unit == "mm" else f"{amp:.3g}"
         k = stacked.setdefault(round(float(np.log10(f0)), 1), [])
         ax.annotate(f"{p['coordinate']}: {f0:.3f} Hz, {value}", (f0, top * 2.0), xytext=(6, 2 + 10 * len(k)),
                     textcoords="offset points", fontsize=7, color=colour[p["coordinate"]])
@@ -806,13 +816,11 @@ def _peak_rows(peaks: list, settings: dict) -> tuple[list, list, str]:
     """(rows, header, words) of the spectrum report's table of spectral peaks (``peaks.json``'s ``peaks``)."""
     rows = []
     for p in peaks:
-        scale, unit = (1e3, "mm") if p.get("unit") == "m" else (1.0, p.get("unit") or "")
-        steady = p.get("steady", True)
-        rows.append([p["coordinate"], f"{p['frequency_hz']:.4f}",
-                     f"{p['amplitude'] * scale:.3g}" if steady else "–",
-                     _fmt(None if p.get("amplitude_sigma") is None or not steady else p["amplitude_sigma"] * scale, ".2g"),
+        amp, sigma, unit, fit = peak_amplitude(p)
+        scale = 1e3 if unit == "mm" else 1.0
+        rows.append([p["coordinate"], f"{p['frequency_hz']:.4f}", f"{amp:.3g}" if fit else "–", _fmt(sigma, ".2g"),
                      f"{p['amplitude_psd'] * scale:.3g}" if "amplitude_psd" in p else "–", unit, f"{p['ratio']:.0f}",
-                     "yes" if steady else "no"])
+                     "yes" if p.get("steady", True) else "no"])
     header = ["coordinate", "Hz", "amplitude (fit)", "σ", "amplitude (PSD)", "unit", "× floor", "steady"]
     text = (f"{len(peaks)} peak(s) standing at least 10 times above the power law fitted to the spectrum around them, "
             f"whatever the motion model: the frequency from the Welch PSD (resolution {settings['resolution_hz']:.4f} Hz), "
