@@ -104,12 +104,13 @@ def test_bad_files_are_named_with_their_line(tmp_path, atx):
     bad.write_text("not an antex file\n")
     with pytest.raises(CdgpsError, match=r"bad.atx: not an ANTEX file"):
         read_antex(bad)
-    lines = atx.read_text().splitlines()
-    k = next(i for i, ln in enumerate(lines) if "NORTH / EAST / UP" in ln and "158.30" in ln)
-    lines[k] = _label("      0.60      x.98    158.30", "NORTH / EAST / UP")
-    bad.write_text("\n".join(lines) + "\n")
-    with pytest.raises(CdgpsError, match=rf"bad.atx: line {k + 1}: NORTH / EAST / UP: expected numbers"):
-        read_antex(bad)
+    for east, words in (("x.98", "expected numbers"), ("nan", "expected finite numbers")):   # a bad offset, its line
+        lines = atx.read_text().splitlines()
+        k = next(i for i, ln in enumerate(lines) if "NORTH / EAST / UP" in ln and "158.30" in ln)
+        lines[k] = _label(f"      0.60{east:>10}    158.30", "NORTH / EAST / UP")
+        bad.write_text("\n".join(lines) + "\n")
+        with pytest.raises(CdgpsError, match=rf"bad.atx: line {k + 1}: NORTH / EAST / UP: {words}"):
+            read_antex(bad)
     lines = atx.read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("   NOAZI") and i > 20)
     lines[k] = lines[k][:-8]                                              # one value short of the zenith grid
@@ -118,12 +119,6 @@ def test_bad_files_are_named_with_their_line(tmp_path, atx):
         read_antex(bad)
     with pytest.raises(CdgpsError, match=r"cannot read"):
         read_antex(tmp_path / "missing.atx")
-    lines = atx.read_text().splitlines()
-    k = next(i for i, ln in enumerate(lines) if "NORTH / EAST / UP" in ln and "158.30" in ln)
-    lines[k] = _label("      0.60       nan    158.30", "NORTH / EAST / UP")
-    bad.write_text("\n".join(lines) + "\n")
-    with pytest.raises(CdgpsError, match=rf"bad.atx: line {k + 1}: NORTH / EAST / UP: expected finite numbers"):
-        read_antex(bad)
     lines = atx.read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if "LEIAR25.R4      LEIT" in ln)
     bad.write_text("\n".join(lines[:k + 6]) + "\n")                          # cut inside that antenna
