@@ -71,6 +71,12 @@ EPOCH_PAIRING_DEFAULTS = {"sync_tol_s": 0.025, "max_age_s": 30.0, "age_sigma_m_p
 #: RTKLIB evaluates it at its current estimate: a header 17.5 m high put the GEONET car +13 mm above it)
 ROVER_ORIGIN_TOL_M = 1.0
 
+#: a static float solution this far (m) from the least squares of the code alone is not where the rover is: it moves
+#: (a static rover's two agree to about a metre, the code's multipath; a 40 m walk put the static float 789 m away, a
+#: 30 m walk of a 2010 u-blox rover 774 m): ``rtk`` then starts from the code's mean position, and so does ``init``'s
+#: random-walk float
+MOVING_ROVER_FLOAT_M = 20.0
+
 #: variance factor of a GLONASS (FDMA) code single difference while GLONASS is float (not glonass_fix): the
 #: receivers' code biases differ from channel to channel and do not cancel (u-blox: decimetres to metres), so the
 #: GLONASS codes weigh 10×σ less than the others.  On the real M8P pair with a random-walk float they pulled the GPS

@@ -1964,6 +1964,8 @@ def _engine_solution(d: _Data, sg: _Segments, w: _Weights, eng: dict, xr0, r_enu
         Ja = J[sg.free][:, 3:]
         a_res, q_res = Ja @ eng["lambda_float"][0], Ja @ eng["lambda_float"][1] @ Ja.T
     fl.block.update(_random_walk_notes(eng.get("random_walk"), opt))
+    if eng.get("moving_rover") is not None:        # the float is the code's mean and the random walk's arcs
+        fl.block["moving_rover"] = eng["moving_rover"]
     glo = np.where(_fdma_segments(d, sg) & np.isfinite(seg_int), seg_int, np.nan) if opt.glonass_fix else None
     fx = _Fix(a_res, q_res, fixed_mask, ints, _nan_none(res.get("ratio")),
               _nan_none(res.get("ratio_full_set")), bool(res.get("accepted", False)), bool(res.get("partial", False)),

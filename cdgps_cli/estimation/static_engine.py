@@ -25,7 +25,7 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
-                                      MULTI_GNSS_DEFAULTS, RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR,
+                                      MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS, RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR,
                                       UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
@@ -800,7 +800,9 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]}
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x, P = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, **sigma_amb)    # a day at 1 Hz: ≈ 1 s
-    sigma_iono, lambda_float, rw = _lambda_float(rows, cols, times, x, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
+    moving = _code_mean_of_moving_rover(rows, cols, x, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
+    x_start = x if moving is None else np.r_[moving[0], x[3:]]
+    sigma_iono, lambda_float, rw = _lambda_float(rows, cols, times, x_start, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
@@ -809,9 +811,12 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
                        base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times,
                        float_nis_per_row=None if rw is None else rw.nis_per_row)
+    if moving is not None and rw is not None and not (f["resolution"] or {}).get("accepted", False):
+        x, P = _moving_float_state(moving, rw, x.size)
+        f = {**f, "offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "state_fixed": x, "cov_fixed": P}
     steps = dict(code_steps)
     steps["time_s"], steps["signal"] = times[steps["epoch"]], [rows["names"][k] for k in steps["code"]]
-    return {**f, "random_walk": rw, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
+    return {**f, "random_walk": rw, "moving_rover": None if moving is None else {"static_float_apart_m": moving[2]}, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "code_clock_steps": steps, "age_noise": age_noise,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
@@ -922,6 +927,32 @@ def _lambda_float(rows, cols, times, x, opt: dict, xyz: tuple, sigma_amb: dict) 
                                       **sigma_amb)
         return sigma_iono, (xi[3:n_state], Pi[3:n_state, 3:n_state]), None      # (xi: with its ionosphere columns)
     return sigma_iono, None, None
+
+
+def _code_mean_of_moving_rover(rows, cols, x, opt: dict, xyz: tuple, sigma_amb: dict) -> tuple | None:
+    """For a rover whose motion is modelled (``motion`` not "static"): (its code's least-squares offset (3,) m, that
+    offset's covariance (3, 3) m², how far the static float ``x`` lies from it, m) when that is more than
+    :data:`MOVING_ROVER_FLOAT_M` — the rover moves, and its static float, which the random-walk float starts from and
+    a float INIT reports, is nowhere — else None (as ``rtk`` places a moving rover)."""
+    if opt["motion"] == "static" or x.size <= 3:
+        return None
+    base_xyz_m, rover_xyz0_m = xyz
+    code_rows = dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2))
+    xc, Pc = static_least_squares(code_rows, cols, x.size, base_xyz_m, rover_xyz0_m, **sigma_amb)
+    apart = float(np.linalg.norm(x[:3] - xc[:3]))
+    if not (np.all(np.isfinite(xc[:3])) and apart > MOVING_ROVER_FLOAT_M):
+        return None
+    return xc[:3].copy(), Pc[:3, :3].copy(), apart
+
+
+def _moving_float_state(moving: tuple, rw: "RandomWalkFloat", n_state: int) -> tuple:
+    """The float state (n_state,) and covariance of a moving rover nothing was fixed for: its code's mean position
+    (:func:`_code_mean_of_moving_rover`) and the random-walk float's arcs (the static float's arcs fit no position)."""
+    x = np.zeros(n_state)
+    P = np.zeros((n_state, n_state))
+    x[:3], P[:3, :3] = moving[0], moving[1]
+    x[3:], P[3:, 3:] = rw.a, rw.Q
+    return x, P
 
 
 def _paired_rows(base, rover, opt: dict, base_xyz_m, *, weigh_age: bool = False) -> tuple:

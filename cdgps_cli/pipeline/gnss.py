@@ -252,13 +252,22 @@ def _moving_unfixed_warning(res: dict, model: str) -> list:
     variance above :data:`NIS_MISFIT_PER_DOF`): it moves, and neither its static displacement nor its σ describe
     it (a simulated 5 m wander under a 1 mm/√s walk: 69 m off, σ 2 cm, silently)."""
     uv = (res["float"] or {}).get("unit_variance")
-    if model == "static" or n_fixed_with_glonass(res["ambiguities"]) or uv is None or not uv > NIS_MISFIT_PER_DOF:
+    moving = (res["float"] or {}).get("moving_rover")
+    if model == "static" or n_fixed_with_glonass(res["ambiguities"]):
         return []
+    misfit = uv is not None and uv > NIS_MISFIT_PER_DOF
     # the float is all there is: its integers were not taken (the phase check, or a float that does not fit)
-    if (res["float"] or {}).get("rejected_fix"):
+    if misfit and (res["float"] or {}).get("rejected_fix"):
         return [f"no integer fixed (the integers LAMBDA took were rejected, above), and the static float does not fit "
                 f"the data (unit variance {uv:.3g}: the rover moves); its static displacement and sigma do not "
                 f"describe it, and estimate's states from INIT's float ambiguities will not hold"]
+    if moving is not None:
+        return [f"no integer fixed, and the rover moves: its static float solution lands "
+                f"{moving['static_float_apart_m']:.0f} m from its code's mean position, which INIT gives as its static "
+                f"displacement (the mean over the record, to metres); 'cdgps estimate' refuses this INIT ('cdgps rtk' "
+                f"gives a float solution that follows the rover)"]
+    if not misfit:
+        return []
     return [f"no integer fixed, and the static float does not fit the data (unit variance {uv:.3g}): the rover moves "
             f"more than its {model} model lets init's float follow ([gnss.displacement] sigma_m_per_sqrt_s); its static "
             f"displacement and sigma do not describe it, and estimate's states will not hold"]
@@ -610,6 +619,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap."""
     say = progress or (lambda m: None)
     _check_init_of_run(init, run)
+    _check_moving_float_init(init)
     stations = _stations(run)
     _check_master_position(run)
     model = run.cfg.displacement
@@ -743,6 +753,24 @@ def init_window(init: dict) -> tuple | None:
     if not (math.isfinite(t0) and math.isfinite(t1) and t1 > t0):
         raise CdgpsError(f"INIT.json: window {t0!r} – {t1!r}: expected finite GPS seconds, its end after its start")
     return t0, t1
+
+
+def _check_moving_float_init(init: dict) -> None:
+    """CdgpsError for a rover of INIT with no integer fixed whose static float lay far from its code's mean (INIT's
+    ``float.moving_rover``: it moves, and INIT's float is that mean and the random-walk float's arcs): estimate's
+    states take INIT's ambiguities as exact, which only integers can give a moving rover — its states would sit
+    where that mean is, metres from the rover, with millimetre σ."""
+    for r, rov in (init.get("rovers") or {}).items():
+        moving = ((rov or {}).get("float") or {}).get("moving_rover")
+        if moving is None or (rov or {}).get("n_fixed"):
+            continue
+        apart = moving.get("static_float_apart_m")
+        raise CdgpsError(f"rover {r}: INIT fixed none of its integers and the rover moves (its static float solution "
+                         f"lands {apart:.0f} m from its code's mean position): estimate's states take INIT's "
+                         f"ambiguities as exact, which only fixed integers give a moving rover (its states would "
+                         f"follow the code's mean, metres off, with millimetre sigma); use 'cdgps rtk' (a float "
+                         f"filter that follows the rover), or give init data that fix its integers (more signals or "
+                         f"systems, a longer record)")
 
 
 def _check_init_of_run(init: dict, run: GnssRun) -> None:

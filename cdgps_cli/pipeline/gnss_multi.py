@@ -21,7 +21,8 @@ import pandas as pd
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
 from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, HEADER_CHECK_EPOCHS,
-                                      HEADER_POSITION_TOL_M, MULTI_GNSS_DEFAULTS, ROVER_ORIGIN_TOL_M)
+                                      HEADER_POSITION_TOL_M, MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS,
+                                      ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
@@ -613,9 +614,6 @@ def _undetermined_note(what: str, offset_m, cov_m2) -> str:
             f"these data do not say where the rover is)")
 
 
-#: a static float solution this far (m) from the code's mean position is not where the rover is: it moves (a static
-#: rover's two agree to about a metre, the code's multipath; a 40 m walk put the static float 789 m away)
-MOVING_ROVER_FLOAT_M = 20.0
 
 
 def _fixed_positions(res: dict) -> np.ndarray:
