@@ -219,7 +219,10 @@ def _parse_named(items, option: str, what: str = "antenna", form: str = "ANTENNA
         if not sep or not name.strip() or not path.strip():
             raise CdgpsError(f"{option} expects {form} (e.g. 3040=30400920.05o), got {it!r}")
         if name.strip() in out:
-            raise CdgpsError(f"{option}: {what} {name.strip()!r} given twice")
+            raise CdgpsError(f"{option}: {what} {name.strip()!r} given twice" + (
+                f" (a config names one file or one quoted glob pattern per antenna: {option} "
+                f"{name.strip()}='PATTERN' for its consecutive files; 'cdgps ingest {option}' joins repeated files "
+                f"without a config)" if what == "antenna" else ""))
         out[name.strip()] = path.strip()
     return out
 

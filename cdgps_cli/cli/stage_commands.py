@@ -116,6 +116,10 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                    "docs/file-formats.md), or [NAME=]FILE.ubx, a u-blox log's ESF-MEAS IMU data (sensors NAME-accel, "
                    "NAME-gyro; NAME default imu), for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors "
                    "key. A --ubx receiver log with ESF-MEAS gives sensors ANTENNA-accel, ANTENNA-gyro by itself.")
+@click.option("--signals", "signals", default=None, metavar="auto|NAMES",
+              help="GNSS without --config: 'auto' (every signal all receivers hold whose system has ephemerides, as "
+                   "'cdgps config' and 'cdgps rtk' choose) or comma-separated names (G:L1,E:E1,...) [auto]; with "
+                   "--config, its [gnss] signals.")
 @click.option("--antex", "antex", type=click.Path(dir_okay=False), default=None,
               help="GNSS: ANTEX file of the receivers' antenna calibrations, kept in the RUN and taken out of their "
                    "observations by init/estimate [the config's antex, else none].")
@@ -125,7 +129,7 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, master, strict, output, as_json,
-           sensor_logs=(), antex=None, antenna=()):
+           sensor_logs=(), antex=None, antenna=(), signals=None):
     """Validate logs and write one self-contained RUN.mcap.
 
     \b
@@ -143,7 +147,7 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
     (warning naming both files), gaps between files are reported (summary, --json "joins", warnings);
     files of another receiver, marker, antenna, L1 signal or rate are refused (docs/gnss-pipeline.md).
     """
-    gnss = bool(rinex or ubx or nav or master or antex or antenna)
+    gnss = bool(rinex or ubx or nav or master or antex or antenna or signals)
     if not gnss and config and receiver_csv is None:
         from cdgps_cli.config.structure import config_kind
 
@@ -155,7 +159,8 @@ def ingest(ctx, receiver_csv, gyro_csv, actuator_csv, config, rinex, ubx, nav, m
         if receiver_csv or gyro_csv or actuator_csv:
             raise CdgpsError("CSV logs and GNSS receiver files (--rinex/--ubx/--nav/--master, or a GNSS config) cannot be "
                              "mixed in one ingest")
-        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict, sensor_logs, antex, antenna)
+        _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict, sensor_logs, antex, antenna,
+                     signals)
         return
     if sensor_logs:
         raise click.UsageError("--sensor-log applies to GNSS runs (the structure run's gyro log is GYRO_CSV)")
@@ -201,12 +206,15 @@ def _grid_note(c: dict | None) -> str:
 
 
 def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=False, sensor_logs=(), antex=None,
-                 antenna=()):
+                 antenna=(), signals=None):
     from cdgps_cli.config.structure import load_gnss_config, parse_gnss_config
     from cdgps_cli.io.gnss_run import default_config_text
-    from cdgps_cli.pipeline.gnss_ingest import ingest_gnss, with_antenna_options
+    from cdgps_cli.pipeline.gnss_ingest import chosen_signals, ingest_gnss, with_antenna_options
 
     rx, ub = _parse_named_files(rinex, "--rinex"), _parse_named_files(ubx, "--ubx")
+    if config and signals is not None:
+        raise CdgpsError(f"--signals: the config's [gnss] signals choose the signals of a run with --config ({config}); "
+                         f"give --signals without --config, or write them in the config")
     if config:
         cfg = load_gnss_config(config)
     else:
@@ -218,7 +226,12 @@ def _ingest_gnss(ctx, config, rinex, ubx, nav, master, output, as_json, strict=F
                              f"position (or give a --config naming it)")
         if master is not None and master not in files:
             raise CdgpsError(f"master {master!r} is not one of the receivers given: {', '.join(files)}")
-        cfg = parse_gnss_config(default_config_text(files, list(nav), master), "<generated config>")
+        sig = "auto" if signals is None or signals.strip() == "auto" else [x.strip() for x in signals.split(",") if x.strip()]
+        said: list = []
+        sig = chosen_signals(sig, rx, ub, list(nav), said)
+        for w in said:
+            _warn(w)
+        cfg = parse_gnss_config(default_config_text(files, list(nav), master, sig), "<generated config>")
     if antex or antenna:
         cfg = with_antenna_options(cfg, antex, _parse_antenna_types(antenna))
     s = ingest_gnss(cfg, output, rinex=rx or None, ubx=ub or None, nav_paths=list(nav) if nav else None, master=master,

@@ -863,6 +863,7 @@ class GnssConfig:
             "accel_sigma_m_per_s_per_sqrt_s": (self.accel_sigma_m_per_s_per_sqrt_s
                                                if self.displacement == "constant_velocity" else None),
             "mask_deg": self.mask_deg, "ratio": self.ratio,
+            "signals": list(self.signals) if self.signals else ["G:L1"],     # (no key: the GPS L1 path)
         }
 
 

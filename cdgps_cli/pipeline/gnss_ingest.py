@@ -22,6 +22,7 @@ from cdgps_cli.config.structure import GnssConfig
 from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io import gnss_hours, gnss_run
+from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.io.gnss_run import GnssReceiver, IngestInputs, span_text
@@ -552,31 +553,49 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     signal all receivers hold whose system has ephemerides in the navigation files (or the u-blox logs'
     RXM-SFRBX), as ``cdgps rtk --signals auto`` (:func:`cdgps_cli.pipeline.gnss_multi.common_signals`;
     systems without ephemerides named in ``kwargs["warnings"]``) — or a list of signal names."""
-    from cdgps_cli.pipeline.gnss_multi import common_signals, recorded_signals  # noqa: PLC0415
-
-    if signals != "auto":
-        from cdgps_cli.core.signals import SIGNALS  # noqa: PLC0415
-
-        bad = [x for x in signals or () if x not in SIGNALS]
-        if bad or not signals:
-            raise CdgpsError(f"--signals: expected 'auto' or signal names, got {', '.join(map(repr, bad)) or 'none'} "
-                             f"(known: {', '.join(SIGNALS)})")
-        twice = sorted({x for x in signals if list(signals).count(x) > 1})
-        if twice:
-            raise CdgpsError(f"--signals: {', '.join(twice)} given twice")
-    if signals == "auto":
-        files = {**(rinex or {}), **(ubx or {})}
-        said: list = []
-        try:
-            signals = common_signals(files, list(nav_paths), said) if files else None
-            if signals:
-                signals = recorded_signals(rinex or {}, signals, said)
-        except CdgpsError:     # no signal with ephemerides: the GPS L1 path, whose checks say what is missing
-            signals, said = None, []
-        if kwargs.get("warnings") is not None:
-            kwargs["warnings"].extend(said)
+    signals = chosen_signals(signals, rinex, ubx, nav_paths, kwargs.get("warnings"))
     return gnss_run.starter_gnss_config(rinex, ubx, nav_paths, master, master_position=spp_master_position,
                                         master_header_check=master_header_check, signals=signals, **kwargs)
+
+
+def chosen_signals(signals, rinex: dict | None, ubx: dict | None, nav_paths, warnings: list | None) -> list | None:
+    """A ``--signals`` option of ``config`` and ``ingest``: "auto" (:func:`auto_signals`), or a list of known,
+    distinct signal names (CdgpsError naming what is not)."""
+    if signals == "auto":
+        return auto_signals(rinex, ubx, nav_paths, warnings)
+    from cdgps_cli.core.signals import SIGNALS  # noqa: PLC0415
+
+    bad = [x for x in signals or () if x not in SIGNALS]
+    if bad or not signals:
+        raise CdgpsError(f"--signals: expected 'auto' or signal names, got {', '.join(map(repr, bad)) or 'none'} "
+                         f"(known: {', '.join(SIGNALS)})")
+    twice = sorted({x for x in signals if list(signals).count(x) > 1})
+    if twice:
+        raise CdgpsError(f"--signals: {', '.join(twice)} given twice")
+    return list(signals)
+
+
+def auto_signals(rinex: dict | None, ubx: dict | None, nav_paths, warnings: list | None) -> list | None:
+    """``--signals auto`` of ``config`` and of ``ingest`` without a config: every signal all receivers hold whose
+    system has ephemerides in the navigation files (or the u-blox logs' RXM-SFRBX) and whose phase their records
+    hold, as ``cdgps rtk --signals auto`` (:func:`cdgps_cli.pipeline.gnss_multi.common_signals`,
+    :func:`~cdgps_cli.pipeline.gnss_multi.recorded_signals`); an antenna's files (a list, a quoted glob pattern) are
+    read together.  None when no signal has ephemerides (the GPS L1 path, whose checks then say what is missing);
+    what is left out is said in ``warnings``."""
+    from cdgps_cli.pipeline.gnss_multi import common_signals, recorded_signals  # noqa: PLC0415
+
+    files = {n: expand_paths([str(q) for q in (p if isinstance(p, (list, tuple)) else [p])], f"--{kind} {n}")
+             for kind, d in (("rinex", rinex), ("ubx", ubx)) for n, p in (d or {}).items()}
+    said: list = []
+    try:
+        signals = common_signals(files, list(nav_paths), said) if files else None
+        if signals:
+            signals = recorded_signals({n: files[n] for n in rinex or {}}, signals, said)
+    except CdgpsError:
+        signals, said = None, []
+    if warnings is not None:
+        warnings.extend(said)
+    return signals
 
 
 def spp_master_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths, ubx_rx: dict) -> tuple:

@@ -167,7 +167,7 @@ def test_ingest_says_how_many_epochs_hold_nothing_it_keeps(tmp_path):
                                          + blocks[61:]))
     out = tmp_path / "run.mcap"
     r = run_cli("ingest", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={p}", "--nav",
-                MOSAIC / "base.nav", "--master", "base", "-o", out, "-q", "--json")
+                MOSAIC / "base.nav", "--master", "base", "--signals", "G:L1", "-o", out, "-q", "--json")
     assert r.exit_code == 0, r.output
     warn = json.loads(r.stdout)["warnings"]
     assert any(w.startswith(f"{p} (rover): 2 of its 301 observation epochs hold no observation") for w in warn), warn

@@ -306,7 +306,7 @@ def test_ingest_takes_the_antex_file_and_the_types_from_the_command_line(pco_pai
     a config's ``[gnss] antex`` gives, and INIT is the same; a type without a file is refused (exit 2, no RUN)."""
     d = pco_pair
     common = ("ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_pco.obs'}",
-              "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "-q")
+              "--nav", MOSAIC_DIR / "base.nav", "--master", "base", "--signals", "G:L1", "-q")
     r = run_cli(*common, "--antex", d / "r.atx", "--antenna", "base=none", "--antenna", "rover=ROVERANT NONE",
                 "-o", d / "cli.mcap", "--json")
     assert r.exit_code == 0, r.output

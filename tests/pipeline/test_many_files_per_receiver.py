@@ -206,3 +206,42 @@ def test_config_takes_a_quoted_glob_of_an_antenna_s_files(tmp_path):
     assert re.search(r'rinex = ".*3040\*\.05o"', out.read_text()), out.read_text()
     r = run_cli("ingest", "--config", out, "-o", tmp_path / "run.mcap", "-q")
     assert r.exit_code == 0, r.output
+
+
+def test_config_chooses_the_signals_of_every_file_a_glob_matches(pieces, tmp_path):
+    """`cdgps config --signals auto` with an antenna's files as a quoted glob chooses the signals as with one file (it
+    chose GPS L1 alone, silently: a sweep of real files, where init then fixed 18 integers instead of 76), and its
+    comments say how many files the pattern matches; a repeated antenna is refused with the pattern named as the way."""
+    def config(out, *rinex):
+        r = run_cli("-q", "config", *sum((("--rinex", x) for x in rinex), ()), "--nav", MOSAIC / "base.nav",
+                    "--master", "base", "-o", out, "--json")
+        assert r.exit_code == 0, r.output
+        return json.loads(r.stdout)["config"]["signals"], out.read_text()
+
+    one, _ = config(tmp_path / "one.toml", f"base={pieces / 'base.obs'}", f"rover={pieces / 'rover.obs'}")
+    many, text = config(tmp_path / "many.toml", f"base={pieces / 'base_[abc].obs'}", f"rover={pieces / 'rover_*.obs'}")
+    assert len(one) > 1 and many == one, (one, many)
+    assert "the first of 3 files matching" in text and "the first of 2 files matching" in text, text
+    r = run_cli("config", "--rinex", f"base={pieces / 'base_a.obs'}", "--rinex", f"base={pieces / 'base_b.obs'}",
+                "--rinex", f"rover={pieces / 'rover.obs'}", "-o", tmp_path / "twice.toml")
+    assert r.exit_code == 2 and "given twice" in r.output and "base='PATTERN'" in r.output, r.output
+    assert not (tmp_path / "twice.toml").exists()
+
+
+def test_ingest_without_a_config_chooses_the_signals_config_chooses(pieces, tmp_path):
+    """``ingest --rinex … --rinex …`` without --config took GPS L1 alone where ``config`` and ``rtk`` take every signal
+    both files hold (the same files gave two pipelines by the route taken); now its --signals defaults to auto, the
+    RUN's config says which (``info --json``), and --signals beside --config is refused."""
+    r = run_cli("-q", "config", "--rinex", f"base={pieces / 'base.obs'}", "--rinex", f"rover={pieces / 'rover.obs'}",
+                "--nav", MOSAIC / "base.nav", "--master", "base", "-o", tmp_path / "c.toml", "--json")
+    assert r.exit_code == 0, r.output
+    chosen = json.loads(r.stdout)["config"]["signals"]
+    assert len(chosen) > 1, chosen
+    r = run_cli("-q", "ingest", "--rinex", f"base={pieces / 'base_[abc].obs'}", "--rinex", f"rover={pieces / 'rover.obs'}",
+                "--nav", MOSAIC / "base.nav", "--master", "base", "-o", tmp_path / "run.mcap")
+    assert r.exit_code == 0, r.output
+    r = run_cli("-q", "info", tmp_path / "run.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["gnss"]["config"]["signals"] == chosen
+    r = run_cli("ingest", "--config", tmp_path / "c.toml", "--signals", "G:L1", "-o", tmp_path / "again.mcap")
+    assert r.exit_code == 2 and "[gnss] signals" in r.output and not (tmp_path / "again.mcap").exists(), r.output

@@ -66,3 +66,15 @@ def test_a_frame_for_another_output_or_an_unknown_one_is_refused(tmp_path):
         validate_options({"pos_frame": "ned"})
     with pytest.raises(CdgpsError, match=r"iono_threshold_km: expected a baseline length in km >= 0, got -1"):
         validate_options({"iono_threshold_km": -1})
+
+
+def test_a_direction_given_with_static_mode_is_refused():
+    """``--mode static --direction backward`` ran forward and said "forward" (a sweep of real files): static mode is one
+    forward pass, so a direction other than forward given with it is refused; the default passes."""
+    with pytest.raises(CdgpsError, match=r"direction: 'backward' given with mode 'static'"):
+        validate_options({"mode": "static", "direction": "backward"})
+    with pytest.raises(CdgpsError, match=r"direction: 'combined' given with mode 'static'"):
+        validate_options({"mode": "static", "direction": "combined"})
+    assert validate_options({"mode": "static"})["direction"] == "combined"          # (solve_rtk runs it forward)
+    assert validate_options({"mode": "static", "direction": "forward"})["direction"] == "forward"
+    assert validate_options({"mode": "kinematic", "direction": "backward"})["direction"] == "backward"

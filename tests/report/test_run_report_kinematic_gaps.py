@@ -23,7 +23,7 @@ def test_report_run_takes_states_whose_single_epoch_series_has_gaps(tmp_path):
     rover = tmp_path / "rover.obs"
     rover.write_text(_edit_records((MOSAIC / "rover.obs").read_text(), {40}, three_gps))
     for args in (("ingest", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={rover}", "--nav",
-                  MOSAIC / "base.nav", "--master", "base", "-o", tmp_path / "run.mcap"),
+                  MOSAIC / "base.nav", "--master", "base", "--signals", "G:L1", "-o", tmp_path / "run.mcap"),
                  ("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json"),
                  ("estimate", tmp_path / "run.mcap", "--init", tmp_path / "init.json", "-o", tmp_path / "states.mcap")):
         r = run_cli("-q", *args)
