@@ -226,8 +226,9 @@ def empty_epochs_warning(n: str, path, rx: GnssReceiver) -> list[str]:
     tables (no satellite at all, or none of the kept systems and signals): not in the run, said with how many (a
     sweep of real files found an epoch of no satellite dropped unsaid, where ``rtk`` counts it)."""
     n_file = rx.header.get("n_epochs") if isinstance(rx.header, dict) and rx.format == "rinex" else None
-    if not n_file or len(rx.header.get("files") or ()) > 1:     # (joined files: their count is not a union)
-        return []
+    overlaps = ((rx.info or {}).get("join") or {}).get("overlaps") if isinstance(rx.info, dict) else None
+    if not n_file or overlaps:      # (files that overlap: their summed count less the repeats is a union only of the
+        return []                   # epochs that hold observations)
     times = [rx.raw["time_gps_s"].to_numpy(dtype=np.float64)]
     if rx.signals is not None:
         times.append(rx.signals["time_gps_s"].to_numpy(dtype=np.float64))

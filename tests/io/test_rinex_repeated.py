@@ -171,3 +171,14 @@ def test_ingest_says_how_many_epochs_hold_nothing_it_keeps(tmp_path):
     assert r.exit_code == 0, r.output
     warn = json.loads(r.stdout)["warnings"]
     assert any(w.startswith(f"{p} (rover): 2 of its 301 observation epochs hold no observation") for w in warn), warn
+    # the rover in two files that follow one another: the same count (it was left unsaid for joined files)
+    edited = [empty if i == 50 else galileo if i == 60 else b for i, b in enumerate(blocks)]
+    parts = (tmp_path / "rover_1.obs", tmp_path / "rover_2.obs")
+    parts[0].write_text("".join(head) + "".join("".join(b) for b in edited[:150]))
+    parts[1].write_text("".join(head) + "".join("".join(b) for b in edited[150:]))
+    r = run_cli("ingest", "--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex", f"rover={parts[0]}", "--rinex",
+                f"rover={parts[1]}", "--nav", MOSAIC / "base.nav", "--master", "base", "--signals", "G:L1",
+                "-o", tmp_path / "run2.mcap", "-q", "--json")
+    assert r.exit_code == 0, r.output
+    warn = json.loads(r.stdout)["warnings"]
+    assert any("(rover): 2 of its 301 observation epochs hold no observation" in w for w in warn), warn
