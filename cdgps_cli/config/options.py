@@ -77,6 +77,10 @@ ROVER_ORIGIN_TOL_M = 1.0
 #: random-walk float
 MOVING_ROVER_FLOAT_M = 20.0
 
+#: an offset is taken as where the rover is only when it exceeds this many times its 3-D σ (√trace of its covariance):
+#: two satellites over ten minutes of a 35 km pair gave a static float 14.6 m away with σ of tens of metres
+ORIGIN_MOVE_SIGMAS = 3.0
+
 #: variance factor of a GLONASS (FDMA) code single difference while GLONASS is float (not glonass_fix): the
 #: receivers' code biases differ from channel to channel and do not cancel (u-blox: decimetres to metres), so the
 #: GLONASS codes weigh 10×σ less than the others.  On the real M8P pair with a random-walk float they pulled the GPS

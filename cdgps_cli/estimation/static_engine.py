@@ -25,8 +25,8 @@ from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, 
 from cdgps_cli.estimation.kalman import StepFilter
 from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
-                                      MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS, RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR,
-                                      UNCHECKED_FIX_NIS_MAX)
+                                      MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS, ORIGIN_MOVE_SIGMAS,
+                                      RANDOM_WALK_MAX_RAISES, RANDOM_WALK_RAISE_FACTOR, UNCHECKED_FIX_NIS_MAX)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.dd_signals import DDGroupModel, RunDDModel, epoch_groups, paired_sd_rows
 from cdgps_cli.measurement.differencing import ambiguity_datum, ambiguity_segments
@@ -800,9 +800,7 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
     sigma_amb = {"sigma_amb_cycles": opt["amb_sigma_cycles"]}
     n_state = 3 + (int(cols.max()) - 2 if cols.size else 0)
     x, P = static_least_squares(rows, cols, n_state, base_xyz_m, rover_xyz0_m, **sigma_amb)    # a day at 1 Hz: ≈ 1 s
-    moving = _code_mean_of_moving_rover(rows, cols, x, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
-    x_start = x if moving is None else np.r_[moving[0], x[3:]]
-    sigma_iono, lambda_float, rw = _lambda_float(rows, cols, times, x_start, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
+    sigma_iono, lambda_float, rw = _lambda_float(rows, cols, times, x, opt, (base_xyz_m, rover_xyz0_m), sigma_amb)
     if not opt["fix"]:
         f = {"offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "resolution": None, "pairs": [], "dd_float": None,
              "state_fixed": x, "cov_fixed": P}
@@ -811,12 +809,15 @@ def static_baseline(base, rover, base_xyz_m, rover_xyz0_m, options: dict | None 
                        min_success_rate=opt["min_success_rate"], amb=lambda_float, glonass_fix=opt["glonass_fix"],
                        base_xyz_m=base_xyz_m, origin_xyz_m=rover_xyz0_m, times_s=times,
                        float_nis_per_row=None if rw is None else rw.nis_per_row)
-    if moving is not None and rw is not None and not (f["resolution"] or {}).get("accepted", False):
+    moving = None
+    if rw is not None and not (f["resolution"] or {}).get("accepted", False):     # nothing fixed: the float is all
+        moving = _code_mean_of_moving_rover(rows, cols, (x, P), (base_xyz_m, rover_xyz0_m), sigma_amb)
+    if moving is not None:
         x, P = _moving_float_state(moving, rw, x.size)
         f = {**f, "offset_m": x[:3].copy(), "cov_m2": P[:3, :3].copy(), "state_fixed": x, "cov_fixed": P}
     steps = dict(code_steps)
     steps["time_s"], steps["signal"] = times[steps["epoch"]], [rows["names"][k] for k in steps["code"]]
-    return {**f, "random_walk": rw, "moving_rover": None if moving is None else {"static_float_apart_m": moving[2]}, "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
+    return {**f, "random_walk": rw, "moving_rover": None if moving is None else moving[2], "lambda_float": lambda_float, "iono_sigma_m": sigma_iono, "unflagged_slips": slips,
             "code_clock_steps": steps, "age_noise": age_noise,
             "float_offset_m": x[:3], "float_cov_m2": P[:3, :3], "epochs_used": int(times.size),
             "epoch_pairing": pairs.summary, "state": x, "cov": P, "arcs": arc_table(rows, cols, times),
@@ -929,20 +930,40 @@ def _lambda_float(rows, cols, times, x, opt: dict, xyz: tuple, sigma_amb: dict) 
     return sigma_iono, None, None
 
 
-def _code_mean_of_moving_rover(rows, cols, x, opt: dict, xyz: tuple, sigma_amb: dict) -> tuple | None:
-    """For a rover whose motion is modelled (``motion`` not "static"): (its code's least-squares offset (3,) m, that
-    offset's covariance (3, 3) m², how far the static float ``x`` lies from it, m) when that is more than
-    :data:`MOVING_ROVER_FLOAT_M` — the rover moves, and its static float, which the random-walk float starts from and
-    a float INIT reports, is nowhere — else None (as ``rtk`` places a moving rover)."""
-    if opt["motion"] == "static" or x.size <= 3:
-        return None
+def _code_mean_of_moving_rover(rows, cols, static: tuple, xyz: tuple, sigma_amb: dict) -> tuple | None:
+    """For a rover under a motion model whose integers were not fixed: (its code's least-squares offset (3,) m, that
+    offset's covariance (3, 3) m² scaled by the code's unit variance, and what the INIT says of it) when the static
+    float ``static`` = (x, P) lies more than :data:`MOVING_ROVER_FLOAT_M` from it and more than
+    :data:`ORIGIN_MOVE_SIGMAS` times their joint 3-D σ — the rover moves, and its static float, which a float INIT
+    reports, is nowhere (a 30 m walk: 774 m away) — else None (as ``rtk`` places a moving rover; a static rover seen
+    through a 40° mask for a minute has a static float tens of metres from its code's with a σ as large, and is not
+    taken for a moving one).  The code's unit variance is its DD residuals' at that offset: a rover that moves
+    tens of metres leaves residuals of that size, so its mean's σ is metres, not the centimetres of a static code."""
+    x, P = static
     base_xyz_m, rover_xyz0_m = xyz
     code_rows = dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2))
     xc, Pc = static_least_squares(code_rows, cols, x.size, base_xyz_m, rover_xyz0_m, **sigma_amb)
     apart = float(np.linalg.norm(x[:3] - xc[:3]))
-    if not (np.all(np.isfinite(xc[:3])) and apart > MOVING_ROVER_FLOAT_M):
+    sigma3 = float(np.sqrt(max(np.trace(P[:3, :3]) + np.trace(Pc[:3, :3]), 0.0)))
+    if not (np.all(np.isfinite(xc[:3])) and apart > max(MOVING_ROVER_FLOAT_M, ORIGIN_MOVE_SIGMAS * sigma3)):
         return None
-    return xc[:3].copy(), Pc[:3, :3].copy(), apart
+    uv = _code_unit_variance(rows, cols, base_xyz_m, rover_xyz0_m, xc[:3])
+    return (xc[:3].copy(), Pc[:3, :3] * max(1.0, uv),
+            {"static_float_apart_m": apart, "code_unit_variance": uv})
+
+
+def _code_unit_variance(rows, cols, base_xyz_m, origin_xyz_m, offset_m) -> float:
+    """The unit variance of the DD code residuals at ``offset_m`` (ECEF m from ``origin_xyz_m``): each signal group's
+    SD residuals weighted as their DDs (``Σ w r² − (Σ w r)²/Σ w``), summed, over the DDs less the three coordinates."""
+    g = _batch_rows(rows, cols, base_xyz_m)
+    if not g["first"].size:
+        return math.nan
+    los = g["sx"] - (np.asarray(origin_xyz_m, dtype=float) + offset_m)
+    r = g["zc"] - np.sqrt(np.einsum("ij,ij->i", los, los)) + g["base_rng"]
+    w, first = g["wc"], g["first"]
+    chi2 = float(np.sum(np.add.reduceat(w * r * r, first) - np.add.reduceat(w * r, first) ** 2 / g["sc"]))
+    dof = int(np.sum(g["size"] - 1)) - 3
+    return chi2 / dof if dof > 0 else math.nan
 
 
 def _moving_float_state(moving: tuple, rw: "RandomWalkFloat", n_state: int) -> tuple:

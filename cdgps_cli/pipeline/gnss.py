@@ -762,7 +762,7 @@ def _check_moving_float_init(init: dict) -> None:
     where that mean is, metres from the rover, with millimetre σ."""
     for r, rov in (init.get("rovers") or {}).items():
         moving = ((rov or {}).get("float") or {}).get("moving_rover")
-        if moving is None or (rov or {}).get("n_fixed"):
+        if moving is None or n_fixed_with_glonass(rov):
             continue
         apart = moving.get("static_float_apart_m")
         raise CdgpsError(f"rover {r}: INIT fixed none of its integers and the rover moves (its static float solution "

@@ -22,7 +22,7 @@ from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
 from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, HEADER_CHECK_EPOCHS,
                                       HEADER_POSITION_TOL_M, MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS,
-                                      ROVER_ORIGIN_TOL_M)
+                                      ORIGIN_MOVE_SIGMAS, ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
@@ -596,10 +596,6 @@ def _static_float_offset(gb, gr, bx, rx, opt: dict) -> tuple:
         return code, (f"the mean position of its code (its static float solution lands {apart:.0f} m from that mean: "
                       f"the rover moves, and its phase fits no static position)"), apart
     return off, "its static float solution", None
-
-
-#: an offset is taken as where the rover is only when it exceeds this many times its 3-D σ (√trace of its covariance)
-ORIGIN_MOVE_SIGMAS = 3.0
 
 
 def _determined(offset_m, cov_m2) -> bool:
