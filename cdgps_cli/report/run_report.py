@@ -193,10 +193,10 @@ def _stage_rows(states, run) -> list[list[str]]:
     init = states.init or {}
     if init:
         io = init.get("options", {})
-        w = init.get("window", {})
+        made = [f"cdgps init on {Path(str(init.get('run', '?'))).name}, {_init_window_text(init.get('window'))}",
+                _init_fixing_text(init)]
         rows.append(["INIT.json (attached to the STATES)",
-                     f"cdgps init on {Path(str(init.get('run', '?'))).name}, window {w.get('start_s', '?')}–"
-                     f"{w.get('end_s', '?')} s; {init.get('integer_fixing', '')}; options: "
+                     "; ".join(x for x in made if x) + "; options: "
                      + "; ".join(f"{k} = {v}" for k, v in sorted(io.items()) if not isinstance(v, (dict, list)))])
     try:
         eo = json.loads(meta.get("options", "{}"))
@@ -206,6 +206,26 @@ def _stage_rows(states, run) -> list[list[str]]:
                  f"on {meta.get('run', '?')}, smoothed {meta.get('smoothed', '?')}, covariance "
                  f"{meta.get('covariance', '?')}; options: " + "; ".join(f"{k} = {v}" for k, v in sorted(eo.items()))])
     return rows
+
+
+def _init_window_text(w) -> str:
+    """INIT's window as the provenance table says it: a structure INIT's ``start_s``–``end_s``, a GNSS INIT's
+    ``start_s`` and ``duration_s`` (seconds from the record's first epoch), or the whole record (none)."""
+    if not isinstance(w, dict) or not w:
+        return "the whole record"
+    if w.get("end_s") is not None:
+        return f"window {w.get('start_s', 0):.15g}–{w['end_s']:.15g} s"
+    dur = w.get("duration_s")
+    return f"window from {w.get('start_s', 0):.15g} s" + (f" for {dur:.15g} s" if dur is not None else " to the end")
+
+
+def _init_fixing_text(init: dict) -> str:
+    """What INIT fixed: a structure INIT's ``integer_fixing``, a GNSS INIT's integers per rover."""
+    if init.get("integer_fixing"):
+        return str(init["integer_fixing"])
+    rovers = init.get("rovers") if isinstance(init.get("rovers"), dict) else {}
+    return ", ".join(f"{r}: {v.get('n_fixed', '?')} of {v.get('n_estimated', '?')} integers fixed"
+                     for r, v in rovers.items() if isinstance(v, dict))
 
 
 def _provenance_section(page: _Page, prov: dict, states, run) -> None:

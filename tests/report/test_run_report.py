@@ -356,3 +356,17 @@ def test_a_segment_the_record_cannot_take_is_an_option_error(free_run, tmp_path,
     r = cli(["report", "run", str(free_run["states"]), "--segment-s", segment_s, "-o", str(out), "--date", DATE])
     assert r.exit_code == 2 and "--segment-s" in r.output and "Traceback" not in r.output, r.output
     assert not out.exists()
+
+
+def test_the_provenance_says_inits_window_and_integers_for_both_kinds():
+    """The INIT row of the provenance table printed "window ?–? s; ;" for a GNSS INIT (no ``end_s``, no
+    ``integer_fixing``): it now says the whole record or the window as given, and each rover's integers."""
+    from cdgps_cli.report.run_report import _init_fixing_text, _init_window_text
+    assert _init_window_text(None) == _init_window_text({}) == "the whole record"
+    assert _init_window_text({"start_s": 1403252400.0, "end_s": 1403252460.5}) == "window 1403252400–1403252460.5 s"
+    assert _init_window_text({"start_s": 3600.0, "duration_s": 900.0, "start_gps_s": 1.4e9}) == \
+        "window from 3600 s for 900 s"
+    assert _init_window_text({"start_s": 60.0, "duration_s": None}) == "window from 60 s to the end"
+    assert _init_fixing_text({"integer_fixing": "12 of 12 fixed"}) == "12 of 12 fixed"
+    assert _init_fixing_text({"rovers": {"r1": {"n_fixed": 8, "n_estimated": 8}, "r2": {"n_fixed": 0, "n_estimated": 5}}}) \
+        == "r1: 8 of 8 integers fixed, r2: 0 of 5 integers fixed"
