@@ -1567,6 +1567,29 @@ def _master_header_comments(found, master: str, comments: list, warnings: list |
 
 
 
+def _long_baseline_notes(master: str, positions: dict, comments: list, warnings: list | None) -> None:
+    """A starter config's warning (and comment) for each rover whose position lies at or beyond
+    ``gnss.iono_threshold_km`` from the master's (their headers' or RTCM positions): ``init`` refuses such a baseline
+    (its static solution neglects the DD ionosphere and the wet delays), ``rtk`` estimates them."""
+    from cdgps_cli.config.options import GNSS_DEFAULTS  # noqa: PLC0415
+
+    limit_km = float(GNSS_DEFAULTS["iono_threshold_km"])
+    xm = positions.get(master)
+    if xm is None:
+        return
+    for n, x in positions.items():
+        if n == master or x is None:
+            continue
+        km = float(np.linalg.norm(np.subtract(x, xm))) / 1e3
+        if km >= limit_km:
+            said = (f"{n}: {km:.1f} km from the master {master} (their header positions), at or above "
+                    f"gnss.iono_threshold_km = {limit_km:g} km: 'cdgps init' refuses this baseline (its static solution "
+                    f"neglects the DD ionosphere and the wet delays); 'cdgps rtk' estimates them")
+            comments.append(f"    {said}")
+            if warnings is not None:
+                warnings.append(said)
+
+
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
@@ -1650,6 +1673,8 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     if master in rinex_rx and master in with_pos and master_header_check is not None:
         _master_header_comments(master_header_check(master, rinex[master], rinex_rx[master], nav_paths), master,
                              comments, warnings)
+    _long_baseline_notes(master, {n: header_position_m(rx.header) for n, rx in rinex_rx.items()} | positions,
+                         comments, warnings)
     sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,

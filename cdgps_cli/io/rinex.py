@@ -24,6 +24,7 @@ resolves 0.24 µs, so epochs are exact to well below a millisecond).
 from __future__ import annotations
 
 import math
+import re
 import zlib
 from pathlib import Path
 
@@ -114,7 +115,48 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
         if not data:
             raise CdgpsError(f"{p}: decompressed to nothing; truncated or corrupt compressed file")
     _refuse_a_value_cut_by_the_end(data, p)
-    return data, compressed or crinex
+    return _with_the_last_blank_lines(data), compressed or crinex
+
+
+#: a RINEX 2 epoch line: a date and time (yy mm dd hh mm ss.sssssss), then the flag and the number of satellites
+_V2_EPOCH_LINE = re.compile(rb"^ [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d\.\d{7}  [0-6][ \d]{2}\d")
+
+
+def _with_the_last_blank_lines(data: bytes) -> bytes:
+    """A RINEX 2 observation file whose last satellite's record lacks only its last continuation line(s), with those
+    lines given back empty: a line of blank fields (an S5 the receiver did not track) carries no value, and a tool
+    that strips trailing white space drops it with the file's last line (a real EUREF file of a GNSS library's test
+    data: "announces 20 satellites × 3 lines but the file ends"; RTKLIB reads it).  A record missing a whole
+    satellite, or any other file, is returned as it is (the readers say where it ends)."""
+    if len(data) < 80 or data[60:80].rstrip() != b"RINEX VERSION / TYPE" or data[20:21] not in (b"O", b"o"):
+        return data
+    try:
+        if float(data[:9]) >= 3:
+            return data
+    except ValueError:
+        return data
+    head_end = data.find(b"END OF HEADER")
+    types = re.search(rb"^ *(\d+)[^\n]{0,54}# / TYPES OF OBSERV", data[:head_end], re.M) if head_end > 0 else None
+    if types is None:
+        return data
+    per_sat = max(1, -(-int(types.group(1)) // 5))
+    body = data[data.find(b"\n", head_end) + 1:]
+    lines = body.split(b"\n")
+    if lines and lines[-1] == b"":
+        lines.pop()                                   # (the line end of the last line)
+    for back in range(1, min(len(lines), 64 * per_sat + 8) + 1):
+        line = lines[-back].rstrip(b"\r")
+        if not _V2_EPOCH_LINE.match(line):
+            continue
+        flag, nsat = int(line[28:29]), int(line[29:32])
+        if flag > 1:
+            return data                               # an event's special records: read as they are
+        needed = -(-nsat // 12) - 1 + nsat * per_sat
+        missing = needed - (back - 1)
+        if 0 < missing < per_sat:
+            return data + (b"" if data.endswith(b"\n") else b"\n") + b"\n" * missing
+        return data
+    return data
 
 
 def _refuse_a_value_cut_by_the_end(data: bytes, path) -> None:
