@@ -1582,7 +1582,7 @@ def _long_baseline_notes(master: str, positions: dict, comments: list, warnings:
             continue
         km = float(np.linalg.norm(np.subtract(x, xm))) / 1e3
         if km >= limit_km:
-            said = (f"{n}: {km:.1f} km from the master {master} (their header positions), at or above "
+            said = (f"{n}: {km:.1f} km from {master} (their header positions), at or above "
                     f"gnss.iono_threshold_km = {limit_km:g} km: 'cdgps init' refuses this baseline (its static solution "
                     f"neglects the DD ionosphere and the wet delays); 'cdgps rtk' estimates them")
             comments.append(f"    {said}")
@@ -1670,11 +1670,13 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         comments.append(f"    {master} position: NONE — write position_ecef_m below")
         if warnings is not None:
             warnings.append(said)
+    header_off = None
     if master in rinex_rx and master in with_pos and master_header_check is not None:
-        _master_header_comments(master_header_check(master, rinex[master], rinex_rx[master], nav_paths), master,
+        header_off = master_header_check(master, rinex[master], rinex_rx[master], nav_paths)
+        _master_header_comments(header_off, master, comments, warnings)
+    if not header_off:                  # (a master header known to be off says nothing of the baselines' lengths)
+        _long_baseline_notes(master, {n: header_position_m(rx.header) for n, rx in rinex_rx.items()} | positions,
                              comments, warnings)
-    _long_baseline_notes(master, {n: header_position_m(rx.header) for n, rx in rinex_rx.items()} | positions,
-                         comments, warnings)
     sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,

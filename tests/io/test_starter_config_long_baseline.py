@@ -31,4 +31,4 @@ def test_config_says_init_refuses_a_long_baseline(tmp_path, dx_m, said):
     warned = [w for w in json.loads(r.stdout)["warnings"] if "'cdgps init' refuses this baseline" in w]
     assert len(warned) == int(said), warned
     if said:
-        assert warned[0].startswith("rover: 12.0 km from the master base") and warned[0] in (tmp_path / "c.toml").read_text()
+        assert warned[0].startswith("rover: 12.0 km from base (their header positions)") and warned[0] in (tmp_path / "c.toml").read_text()
