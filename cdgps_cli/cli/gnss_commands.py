@@ -191,8 +191,12 @@ def baseline_config_cmd(ctx, rinex, nav, master, output, as_json):
     if len(stations) != 2:
         raise CdgpsError(f"a baseline job needs exactly two RINEX observation files (NAME=PATH), got {len(stations)}")
     master = master or next(iter(stations))
-    text = starter_gnss_config(stations, {}, list(nav), master, relative_to=Path(output).resolve().parent)
+    warnings: list = []
+    text = starter_gnss_config(stations, {}, list(nav), master, relative_to=Path(output).resolve().parent,
+                               warnings=warnings)
     _write_text_atomic(output, text)
+    for w in warnings:
+        _warn(w)
     job = load_baseline_job(output)  # the written job must load
     _say(ctx, f"wrote {output}")
     if as_json:

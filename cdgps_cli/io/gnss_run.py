@@ -56,7 +56,7 @@ from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths
-from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs
+from cdgps_cli.io.rinex import end_padded_text, read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s, sampling_interval_s
@@ -249,6 +249,8 @@ def _receiver_warnings(n: str, path, rx: GnssReceiver) -> list[str]:
         out.append(repeated_epochs_text(f"{path} ({n})", [r["time_gps_s"] for r in rep], lines=[r["line"] for r in rep]))
     if back:
         out.append(out_of_order_text(f"{path} ({n})", len(back), back[0]["time_gps_s"]))
+    if header.get("end_padded_lines"):
+        out.append(end_padded_text(f"{path} ({n})", header["end_padded_lines"]))
     return out
 
 
@@ -1582,8 +1584,9 @@ def _long_baseline_notes(master: str, positions: dict, comments: list, warnings:
             continue
         km = float(np.linalg.norm(np.subtract(x, xm))) / 1e3
         if km >= limit_km:
-            said = (f"{n}: {km:.1f} km from {master} (their header positions), at or above "
-                    f"gnss.iono_threshold_km = {limit_km:g} km: 'cdgps init' refuses this baseline (its static solution "
+            said = (f"{n}: {km:.1f} km from {master} (where init places them: the files' positions, a header off by "
+                    f"more than a kilometre replaced by the single-point position), at or above gnss.iono_threshold_km "
+                    f"= {limit_km:g} km: 'cdgps init' and 'cdgps baseline' refuse this baseline (their static solution "
                     f"neglects the DD ionosphere and the wet delays); 'cdgps rtk' estimates them")
             comments.append(f"    {said}")
             if warnings is not None:
@@ -1593,7 +1596,7 @@ def _long_baseline_notes(master: str, positions: dict, comments: list, warnings:
 def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), master: str | None = None, *,
                         displacement: str = "static", sigma_m_per_sqrt_s=None, relative_to: Path | None = None,
                         name: str | None = None, notes: list | None = None, warnings: list | None = None,
-                        master_position=None, master_header_check=None, signals=None) -> str:
+                        master_position=None, master_header_check=None, receiver_position=None, signals=None) -> str:
     """Text of a GNSS run config for the given files; the headers are read and summarised in
     comments (marker, receiver, antenna, span, header position); ``signals`` (names) become ``[gnss] signals``
     unless they are GPS L1 alone (the GPS L1 path, no key).  The master defaults to a UBX log with an RTCM
@@ -1675,8 +1678,10 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         header_off = master_header_check(master, rinex[master], rinex_rx[master], nav_paths)
         _master_header_comments(header_off, master, comments, warnings)
     if not header_off:                  # (a master header known to be off says nothing of the baselines' lengths)
-        _long_baseline_notes(master, {n: header_position_m(rx.header) for n, rx in rinex_rx.items()} | positions,
-                             comments, warnings)
+        where = {n: (receiver_position(n, (rinex | ubx)[n], rx, nav_paths) if receiver_position is not None
+                     else header_position_m(rx.header)) for n, rx in (rinex_rx | ubx_rx).items() if n != master}
+        where[master] = positions.get(master, header_position_m(rinex_rx[master].header) if master in rinex_rx else None)
+        _long_baseline_notes(master, where, comments, warnings)
     sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
                             displacement=displacement, sigma_m_per_sqrt_s=sigma_m_per_sqrt_s, comments=comments,

@@ -120,14 +120,33 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
 
 #: a RINEX 2 epoch line: a date and time (yy mm dd hh mm ss.sssssss), then the flag and the number of satellites
 _V2_EPOCH_LINE = re.compile(rb"^ [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d\.\d{7}  [0-6][ \d]{2}\d")
+#: bytes of a RINEX 2 file's end in which its last epoch line is looked for (64 satellites × 5 lines × 81 bytes)
+_V2_TAIL_BYTES = 1 << 15
+
+
+class EndPadded(bytes):
+    """A RINEX 2 observation file's bytes given back the blank lines its last satellite's record lacked
+    (:func:`_with_the_last_blank_lines`); ``end_padded_lines`` says how many, for the readers' ``end_padded_lines``
+    and the commands' warning (:func:`end_padded_text`)."""
+
+    end_padded_lines: int = 0
+
+
+def end_padded_text(who: str, n: int) -> str:
+    """The warning for a RINEX 2 file read with ``n`` blank lines given back at its end."""
+    return (f"{who}: the last satellite's record of its last epoch ends {n} line(s) short at the end of the file: "
+            f"read as blank fields (a line of blank fields dropped with the file's trailing white space, as RTKLIB "
+            f"reads it; were the file cut there, that satellite's last observation types are missing)")
 
 
 def _with_the_last_blank_lines(data: bytes) -> bytes:
     """A RINEX 2 observation file whose last satellite's record lacks only its last continuation line(s), with those
-    lines given back empty: a line of blank fields (an S5 the receiver did not track) carries no value, and a tool
-    that strips trailing white space drops it with the file's last line (a real EUREF file of a GNSS library's test
-    data: "announces 20 satellites × 3 lines but the file ends"; RTKLIB reads it).  A record missing a whole
-    satellite, or any other file, is returned as it is (the readers say where it ends)."""
+    lines given back empty (an :class:`EndPadded`): a line of blank fields (an S5 the receiver did not track) carries
+    no value, and a tool that strips trailing white space drops it with the file's last line (a real EUREF file of a
+    GNSS library's test data: "announces 20 satellites × 3 lines but the file ends"; RTKLIB reads it).  Not where
+    the last line is cut inside a value (no line end after it, and a length no whole line of 16-column fields has):
+    the readers refuse that, as before.  A record missing a whole satellite, or any other file, is returned as it
+    is.  Only the file's last :data:`_V2_TAIL_BYTES` are looked at."""
     if len(data) < 80 or data[60:80].rstrip() != b"RINEX VERSION / TYPE" or data[20:21] not in (b"O", b"o"):
         return data
     try:
@@ -140,22 +159,26 @@ def _with_the_last_blank_lines(data: bytes) -> bytes:
     if types is None:
         return data
     per_sat = max(1, -(-int(types.group(1)) // 5))
-    body = data[data.find(b"\n", head_end) + 1:]
-    lines = body.split(b"\n")
-    if lines and lines[-1] == b"":
+    body_start = data.find(b"\n", head_end) + 1
+    whole_end = data.endswith(b"\n")
+    lines = data[max(body_start, len(data) - _V2_TAIL_BYTES):].split(b"\n")
+    if whole_end:
         lines.pop()                                   # (the line end of the last line)
-    for back in range(1, min(len(lines), 64 * per_sat + 8) + 1):
+    elif len(lines[-1].rstrip(b"\r")) % 16 not in (0, 14, 15):
+        return data                                   # the last line cut inside a value: refused by the readers
+    for back in range(1, len(lines)):
         line = lines[-back].rstrip(b"\r")
         if not _V2_EPOCH_LINE.match(line):
             continue
         flag, nsat = int(line[28:29]), int(line[29:32])
         if flag > 1:
             return data                               # an event's special records: read as they are
-        needed = -(-nsat // 12) - 1 + nsat * per_sat
-        missing = needed - (back - 1)
-        if 0 < missing < per_sat:
-            return data + (b"" if data.endswith(b"\n") else b"\n") + b"\n" * missing
-        return data
+        missing = -(-nsat // 12) - 1 + nsat * per_sat - (back - 1)
+        if not 0 < missing < per_sat:
+            return data
+        out = EndPadded(data + (b"" if whole_end else b"\n") + b"\n" * missing)
+        out.end_padded_lines = missing
+        return out
     return data
 
 
@@ -635,17 +658,25 @@ def read_rinex_obs(path: str | Path, *, gps_l1_optional: bool = False,
     p = _as_path(path)
     if block_epochs < 1:
         raise ValueError(f"block_epochs must be >= 1, got {block_epochs}")
+    read = _read_bytes(p) if read is None else read
     if FAST_PARSE:
-        data, compressed = _read_bytes(p) if read is None else read
+        data, compressed = read
         try:
-            return in_gps_time(*_read_obs_fast(p, data, compressed, gps_l1_optional, block_epochs))
+            return _noting_end_padding(read[0], in_gps_time(*_read_obs_fast(p, data, compressed, gps_l1_optional,
+                                                                              block_epochs)))
         except Unsupported:
             pass                      # the line-by-line reader: the same table, or the error naming the line
-    if read is not None:
-        lines, compressed = _split_lines(read[0]), read[1]
-    else:
-        lines, compressed = _read_lines(p)
-    return in_gps_time(*_read_obs_lines(p, lines, compressed, gps_l1_optional))
+    lines, compressed = _split_lines(read[0]), read[1]
+    return _noting_end_padding(read[0], in_gps_time(*_read_obs_lines(p, lines, compressed, gps_l1_optional)))
+
+
+def _noting_end_padding(data: bytes, result: tuple) -> tuple:
+    """A reader's (header, table) with ``end_padded_lines`` in the header when :func:`_with_the_last_blank_lines`
+    gave the file back lines at its end."""
+    n = getattr(data, "end_padded_lines", 0)
+    if n:
+        result[0]["end_padded_lines"] = int(n)
+    return result
 
 
 _COLUMN_INDEXES: dict = {}

@@ -24,7 +24,7 @@ from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, glonass_frequency_hz, 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 from cdgps_cli.io.rinex import _ObsHeader, _parse_version_line, _range_note, _read_text, _sat_id
 from cdgps_cli.io._fixed_width import LineBuffer, Unsupported, decimal_fields, flag_digits
-from cdgps_cli.io.rinex import _as_path, _frame, _read_bytes, _split_header, _split_lines, in_gps_time
+from cdgps_cli.io.rinex import _as_path, _frame, _noting_end_padding, _read_bytes, _split_header, _split_lines, in_gps_time
 from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
@@ -245,10 +245,10 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
         signals without ``GLONASS SLOT / FRQ #`` for an observed satellite, a malformed line.
     """
     p = _as_path(path)
+    read = _read_bytes(p) if read is None else read
     if FAST_PARSE:
-        read = _read_bytes(p) if read is None else read
         try:
-            return in_gps_time(*_read_bytes_v3(p, list(signals), glonass_k, read))
+            return _noting_end_padding(read[0], in_gps_time(*_read_bytes_v3(p, list(signals), glonass_k, read)))
         except Unsupported:
             pass
     lines, hdr, end, data = _observation_header(p, read)           # the bytes read (and decompressed) once
@@ -258,7 +258,7 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
     info = dict(hdr.info)
     info["signal_codes"] = {k: list(v[3]) for k, v in cols.items()}
     info["glonass_slots"] = slots
-    return in_gps_time(info, df)
+    return _noting_end_padding(read[0], in_gps_time(info, df))
 
 
 def _rinex2_by_first_line(data: bytes) -> bool:

@@ -555,7 +555,8 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     systems without ephemerides named in ``kwargs["warnings"]``) — or a list of signal names."""
     signals = chosen_signals(signals, rinex, ubx, nav_paths, kwargs.get("warnings"))
     return gnss_run.starter_gnss_config(rinex, ubx, nav_paths, master, master_position=spp_master_position,
-                                        master_header_check=master_header_check, signals=signals, **kwargs)
+                                        master_header_check=master_header_check, receiver_position=receiver_position,
+                                        signals=signals, **kwargs)
 
 
 def chosen_signals(signals, rinex: dict | None, ubx: dict | None, nav_paths, warnings: list | None) -> list | None:
@@ -624,6 +625,32 @@ def _raw_single_point(raw: pd.DataFrame, nav: pd.DataFrame, what: str, x0=None,
     return x
 
 
+def _spp_near(rx: "gnss_run.GnssReceiver", nav_paths, x0, what: str):
+    """The receiver's single-point position (ECEF m) over its first :data:`HEADER_CHECK_EPOCHS` epochs, seeded at
+    ``x0`` and, when that fails, at the Earth's centre (a header thousands of km off leaves too few satellites above
+    the mask seen from there); None without navigation files, GPS L1 pseudoranges or a solution."""
+    if not nav_paths or not len(rx.raw):
+        return None
+    nav = gnss_run.merge_nav(nav_paths)
+    for seed in (x0, None):
+        try:
+            return _raw_single_point(rx.raw, nav, what, seed, HEADER_CHECK_EPOCHS)
+        except CdgpsError:
+            continue
+    return None
+
+
+def receiver_position(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths):
+    """Where ``init`` puts a receiver's antenna before it solves (ECEF m, or None): its header position (APPROX
+    POSITION XYZ plus ANTENNA: DELTA H/E/N), else — or when that is more than
+    :data:`~cdgps_cli.config.options.HEADER_POSITION_TOL_M` from it — its single-point position."""
+    xh = antenna_reference_point_m(rx.header, str(path)) if isinstance(rx.header, dict) else None
+    spp = _spp_near(rx, nav_paths, xh, f"{path} ({name})")
+    if spp is None or (xh is not None and float(np.linalg.norm(spp - xh)) <= HEADER_POSITION_TOL_M):
+        return xh
+    return spp
+
+
 def master_header_check(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths) -> tuple | None:
     """For ``cdgps config``: a warning when a RINEX master's antenna position from its header (APPROX POSITION XYZ
     plus ANTENNA: DELTA H/E/N) is more than :data:`~cdgps_cli.config.options.HEADER_POSITION_TOL_M` from its
@@ -631,16 +658,9 @@ def master_header_check(name: str, path, rx: "gnss_run.GnssReceiver", nav_paths)
     refuse such a master — (the warning, the config's comment) —; None when it is within, or when no single-point
     position can be made (no navigation files, no GPS L1 pseudoranges they cover)."""
     xm = antenna_reference_point_m(rx.header, str(path))
-    if xm is None or not nav_paths or not len(rx.raw):
+    if xm is None:
         return None
-    nav = gnss_run.merge_nav(nav_paths)
-    spp = None
-    for x0 in (xm, None):        # seeded at the header; from the Earth's centre when that fails (a header thousands
-        try:                     # of km off leaves too few satellites above the mask seen from there)
-            spp = _raw_single_point(rx.raw, nav, f"{path} ({name})", x0, HEADER_CHECK_EPOCHS)
-            break
-        except CdgpsError:
-            continue
+    spp = _spp_near(rx, nav_paths, xm, f"{path} ({name})")
     if spp is None:
         return None
     off = float(np.linalg.norm(spp - xm))

@@ -211,12 +211,14 @@ def _stage_rows(states, run) -> list[list[str]]:
 def _init_window_text(w) -> str:
     """INIT's window as the provenance table says it: a structure INIT's ``start_s``–``end_s``, a GNSS INIT's
     ``start_s`` and ``duration_s`` (seconds from the record's first epoch), or the whole record (none)."""
+    def num(x) -> str:                  # seconds to the microsecond, without an exponent or float noise
+        return np.format_float_positional(round(float(x), 6), trim="-")
     if not isinstance(w, dict) or not w:
         return "the whole record"
     if w.get("end_s") is not None:
-        return f"window {w.get('start_s', 0):.15g}–{w['end_s']:.15g} s"
+        return f"window {num(w.get('start_s', 0))}–{num(w['end_s'])} s"
     dur = w.get("duration_s")
-    return f"window from {w.get('start_s', 0):.15g} s" + (f" for {dur:.15g} s" if dur is not None else " to the end")
+    return f"window from {num(w.get('start_s', 0))} s" + (f" for {num(dur)} s" if dur is not None else " to the end")
 
 
 def _init_fixing_text(init: dict) -> str:

@@ -367,6 +367,7 @@ def test_the_provenance_says_inits_window_and_integers_for_both_kinds():
     assert _init_window_text({"start_s": 3600.0, "duration_s": 900.0, "start_gps_s": 1.4e9}) == \
         "window from 3600 s for 900 s"
     assert _init_window_text({"start_s": 60.0, "duration_s": None}) == "window from 60 s to the end"
+    assert _init_window_text({"start_s": 60.0, "duration_s": 240.000000238419}) == "window from 60 s for 240 s"
     assert _init_fixing_text({"integer_fixing": "12 of 12 fixed"}) == "12 of 12 fixed"
     assert _init_fixing_text({"rovers": {"r1": {"n_fixed": 8, "n_estimated": 8}, "r2": {"n_fixed": 0, "n_estimated": 5}}}) \
         == "r1: 8 of 8 integers fixed, r2: 0 of 5 integers fixed"
