@@ -240,6 +240,16 @@ def _provenance_section(page: _Page, prov: dict, states, run) -> None:
                  f"<table class='prov'><tr><th>input</th><th>made by</th></tr>{stages}</table>")
 
 
+def _nis_side_text(nis_per_dof: float, lo: float) -> str:
+    """What a pooled NIS outside its bound says of the σ: below it, the measurement model's variances exceed the
+    data's scatter (the σ are conservative: a geodetic receiver under the default 3 mm + 3 mm / sin el weights);
+    above it, the model misses something (noise, motion, a wrong integer) and the σ are too small."""
+    if nis_per_dof < lo:
+        return (f"; below it: the observations scatter less than their weights say (about {1 / np.sqrt(nis_per_dof):.1f}"
+                f"× less in σ), so the σ shown are conservative (the weights: the INIT's options sigma_a_m, sigma_b_m)")
+    return "; above it: the model or its noise misses something in these data, and the σ shown are too small"
+
+
 def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> None:
     rows = [["epochs", f"{scan.n_epochs} ({_span_text(scan)}, every {scan.period_s:g} s)"],
             ["config", f"{states.config_name} (sha256 {str(states.config_sha256)[:16]}…)"]]
@@ -250,7 +260,8 @@ def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> 
         lo, hi = ns["pooled_interval95_if_independent"]
         ok = lo <= ns["pooled_per_dof"] <= hi
         rows.append(["NIS per dof (pooled) vs its 95 % bound", f"{ns['pooled_per_dof']:.3f} in [{lo:.3f}, {hi:.3f}]: "
-                     + ("consistent" if ok else f"outside (the bound pools {ns['epochs']} epochs as if independent)")])
+                     + ("consistent" if ok else f"outside (the bound pools {ns['epochs']} epochs as if independent)"
+                        + _nis_side_text(ns["pooled_per_dof"], lo))])
         rows.append(["epochs with NIS inside its 95 % χ² interval", f"{100 * ns['fraction_in_interval95']:.1f} % "
                      f"(expected 95 %) of {ns['epochs']}"])
     if scan.nees_stats:

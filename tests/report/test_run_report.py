@@ -371,3 +371,12 @@ def test_the_provenance_says_inits_window_and_integers_for_both_kinds():
     assert _init_fixing_text({"integer_fixing": "12 of 12 fixed"}) == "12 of 12 fixed"
     assert _init_fixing_text({"rovers": {"r1": {"n_fixed": 8, "n_estimated": 8}, "r2": {"n_fixed": 0, "n_estimated": 5}}}) \
         == "r1: 8 of 8 integers fixed, r2: 0 of 5 integers fixed"
+
+
+def test_a_nis_outside_its_bound_says_which_way():
+    """The summary's pooled NIS outside its bound says whether the σ are conservative or too small (a real geodetic
+    pair under the default weights: 0.031 per dof, "outside" and nothing more)."""
+    from cdgps_cli.report.run_report import _nis_side_text
+    below = _nis_side_text(0.031, 0.944)
+    assert "conservative" in below and "5.7× less" in below
+    assert "too small" in _nis_side_text(3.0, 0.944)
