@@ -764,9 +764,10 @@ def _check_moving_float_init(init: dict) -> None:
         moving = ((rov or {}).get("float") or {}).get("moving_rover")
         if moving is None or n_fixed_with_glonass(rov):
             continue
-        apart = moving.get("static_float_apart_m")
+        apart = moving.get("static_float_apart_m") if isinstance(moving, dict) else None
+        where = f"lands {apart:.0f} m" if isinstance(apart, (int, float)) else "lies far"
         raise CdgpsError(f"rover {r}: INIT fixed none of its integers and the rover moves (its static float solution "
-                         f"lands {apart:.0f} m from its code's mean position): estimate's states take INIT's "
+                         f"{where} from its code's mean position): estimate's states take INIT's "
                          f"ambiguities as exact, which only fixed integers give a moving rover (its states would "
                          f"follow the code's mean, metres off, with millimetre sigma); use 'cdgps rtk' (a float "
                          f"filter that follows the rover), or give init data that fix its integers (more signals or "
