@@ -1033,6 +1033,8 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
     if run.window is not None:
         _say(ctx, f"window: {_gps_time(run.window['start_gps_s'])} – {_gps_time(run.window['end_gps_s'])} "
                   f"({run.window['start_s']:g} s after the record's first epoch, {run.window['duration_s']:g} s)")
+    if run.window_past_the_end_note:
+        _warn(run.window_past_the_end_note)
     for r, v in res["rovers"].items():
         ratio = v["ratio"] if v["ratio"] is None or isinstance(v["ratio"], str) else f"{v['ratio']:.1f}"
         st = ", ".join(f"{k} {x:+.4f} ± {v['sigma'][k]:.4f}" for k, x in v["states"].items())

@@ -152,6 +152,19 @@ class GnssRun:
     (from the record's first epoch), ``start_gps_s`` and ``end_gps_s`` (GPS s; a rover's rows t with start ≤ t < end)
     and ``master_margin_s`` (the master's rows read that much wider on each side: the epochs the rover's pair with);
     None: the whole record."""
+    record_last_gps_s: float | None = None
+    """With a window: the record's last epoch (GPS s; the latest of every receiver's tables)."""
+
+    @property
+    def window_past_the_end_note(self) -> str | None:
+        """A note when the window asked for ends after the record's last epoch (its data are shorter than asked):
+        said by ``init``; None otherwise or without a window."""
+        w, last = self.window or {}, self.record_last_gps_s
+        if not w or last is None or not w["end_gps_s"] > last + 1.0:
+            return None
+        return (f"{self.path}: the window ends {w['end_gps_s'] - last:.0f} s after the record's last epoch "
+                f"({gps_time_str(last)}): it holds {max(last - w['start_gps_s'], 0.0):.0f} s of data, not the "
+                f"{w['duration_s']:g} s asked for")
 
     @property
     def rovers(self) -> list:
@@ -1287,8 +1300,9 @@ def read_gnss_run(path: str | Path, contents=None, columns=None, window=None, wi
         raise CdgpsError(f"{path}: no {EPHEMERIS_ATTACHMENT} attachment although the run was ingested with "
                          f"navigation files (damaged file)")
     named_master = meta.get("master") or cfg.master or (rx_json[0].get("name") if rx_json else None)
+    record_last = None
     if window is not None or window_s is not None:
-        window = _record_window(c, path, len(rx_json), cfg, window, window_s)
+        window, record_last = _record_window(c, path, len(rx_json), cfg, window, window_s)
     receivers = {rj["name"]: _read_receiver(c, path, cfg, i, rj, columns, window, rj.get("name") == named_master)
                  for i, rj in enumerate(rx_json)}
     nav = _nav_table(c, path)
@@ -1296,7 +1310,8 @@ def read_gnss_run(path: str | Path, contents=None, columns=None, window=None, wi
     if master not in receivers:
         raise CdgpsError(f"{path}: the master {master!r} has no observations in the run")
     antex, antennas = _antennas(c, path, receivers)
-    return GnssRun(str(path), cfg, master, receivers, nav, meta, antennas=antennas, antex=antex, window=window)
+    return GnssRun(str(path), cfg, master, receivers, nav, meta, antennas=antennas, antex=antex, window=window,
+                   record_last_gps_s=record_last)
 
 
 def antennas_json(antex, models: dict) -> bytes:
@@ -1366,8 +1381,9 @@ def _nav_table(c, path) -> pd.DataFrame:
     return nav
 
 
-def _record_window(c, path, n_receivers: int, cfg: GnssConfig, window, window_s) -> dict:
-    """:attr:`GnssRun.window` (and the master's margin, :func:`_receiver_rows`) of ``window`` (t0, t1) GPS s or ``window_s`` (start_s, duration_s or None: to the
+def _record_window(c, path, n_receivers: int, cfg: GnssConfig, window, window_s) -> tuple:
+    """(:attr:`GnssRun.window`, the record's last epoch GPS s or None): the window (and the master's margin,
+    :func:`_receiver_rows`) of ``window`` (t0, t1) GPS s or ``window_s`` (start_s, duration_s or None: to the
     record's end) from the record's first epoch (the earliest of every receiver's tables, from their block indexes);
     CdgpsError for a window that is not one (naming the field)."""
     spans = [s for s in (gnss_archive.table_span(c, p.format(i), str(path)) for i in range(n_receivers)
@@ -1392,8 +1408,8 @@ def _record_window(c, path, n_receivers: int, cfg: GnssConfig, window, window_s)
         t0, t1 = float(window[0]), float(window[1])
         if not t1 > t0:
             raise CdgpsError(f"{path}: window {t0!r} – {t1!r} GPS s: expected its end after its start")
-    return {"start_s": t0 - first, "duration_s": t1 - t0, "start_gps_s": t0, "end_gps_s": t1,
-            "master_margin_s": float(cfg.max_age_s + cfg.sync_tol_s)}
+    return ({"start_s": t0 - first, "duration_s": t1 - t0, "start_gps_s": t0, "end_gps_s": t1,
+             "master_margin_s": float(cfg.max_age_s + cfg.sync_tol_s)}, (last if spans else None))
 
 
 def _receiver_rows(window: dict, master: bool) -> tuple:

@@ -1039,7 +1039,8 @@ def is_gnss_states(path: str | Path) -> bool:
 def export_kinematic_csv(states_path: str | Path, out_csv: str | Path) -> dict:
     """The single-epoch (kinematic) solutions of a GNSS STATES.mcap as CSV: time_s, coordinates,
     sigma_<name>, named with their units as ``cdgps export``'s (``rover_e_m``, ``sigma_rover_e_m``;
-    :mod:`cdgps_cli.io.coordinate_columns`), then n_sat_<rover> (a count) and pdop_<rover> (a ratio)."""
+    :mod:`cdgps_cli.io.coordinate_columns`), then n_sat_<rover> (the satellite signals used: one per satellite and
+    signal) and pdop_<rover> (a ratio)."""
     from cdgps_cli.io.coordinate_columns import column_unit, coordinate_column, sigma_column  # noqa: PLC0415
 
     if not is_gnss_states(states_path):

@@ -224,7 +224,10 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                                      "rover": nominal_interval_s(gr["time_gps_s"].to_numpy())})
     try:
         rover = (r, rover_path, rx_from_spp, ant["rover"], hr.get("position_source"))
+        placed = rx
         rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths), warnings=warnings)
+        if rx is not placed:           # the origin is no longer the file's position: the second note says what it is
+            rover = (rover[0], rover[1], False, rover[3], "a-priori position (moved there, above)")
         res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths),
                                                        code_noise=code_noise, warnings=warnings)
     except CdgpsError as exc:

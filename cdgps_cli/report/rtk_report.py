@@ -55,6 +55,14 @@ def pos_enu(sol: dict) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     return enu, sd, ref
 
 
+def _reference_text(ref, frame: str) -> str:
+    """The reference point of :func:`pos_enu` as the caption says it: ECEF metres, or, for a file of east / north /
+    up baselines (``--pos-frame enu``), those from the base."""
+    if frame == "enu":
+        return f"east {ref[0]:.3f}, north {ref[1]:.3f}, up {ref[2]:.3f} m from the base"
+    return f"ECEF {ref[0]:.3f}, {ref[1]:.3f}, {ref[2]:.3f} m"
+
+
 def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = None, n_bins: int = DEFAULT_BINS) -> dict:
     """Write ``index.html`` and ``report.json`` for the solution file ``pos_path``; returns the summary."""
     sol = read_pos(pos_path)
@@ -85,7 +93,7 @@ def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = Non
     band = ", with the ±1σ the file gives (grey)." if sd is not None else "."
     page.figure("enu", enu_figure(t, enu, sd, sol["q"], n_bins),
                 "East, north and up displacement of the rover about the median position of its fixed epochs "
-                f"(ECEF {ref[0]:.3f}, {ref[1]:.3f}, {ref[2]:.3f} m), mm, each epoch coloured by its solution "
+                f"({_reference_text(ref, sol['frame'])}), mm, each epoch coloured by its solution "
                 f"quality ({colours}){band}", src)
     page.figure("quality", quality_figure(t, sol["ns"], sol["ratio"], sol["q"], n_bins, ratio_threshold(sol["header"])),
                 "Satellites used and the ratio test of the integer fix (log scale; an epoch without one is left out).",

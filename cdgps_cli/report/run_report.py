@@ -373,8 +373,9 @@ def _kinematic_figures(page: _Page, states, n_bins: int, chunk_epochs: int) -> N
                 "what the filtered estimate above smooths; its scatter is the measurement noise.", src)
     if sc.extra:
         page.figure("satellites", figs.extra_figure(sc.extra, {"n_sat": "1", "pdop": "1"}),
-                    "Satellites used (n_sat) and the position dilution of precision (PDOP) of each epoch's solution, "
-                    "minimum–maximum per bin.", src)
+                    "Satellite signals used (n_sat: the single differences of fixed integers in each epoch's own "
+                    "solution, one per satellite and signal, so a satellite of two signals counts twice) and the "
+                    "position dilution of precision (PDOP) of that solution, minimum–maximum per bin.", src)
 
 
 def _fix_text(states) -> str:

@@ -93,6 +93,12 @@ def test_start_alone_runs_to_the_records_end_and_bad_windows_are_refused(pair):
     assert r.exit_code == 0, r.output
     init = json.loads(r.stdout)
     assert init["rovers"]["rover"]["epochs"]["n_epochs_used"] == 50 and init["window"]["start_s"] == 3900
+    assert "after the record's last epoch" not in r.output
+    # a window asked longer than the record holds: solved, and said (it printed the window as asked, silently)
+    r = run_cli("init", pair / "run.mcap", "--start", 3900, "--duration", 120, "-o", pair / "past.json")
+    assert r.exit_code == 0, r.output
+    assert "the window ends 22 s after the record's last epoch" in r.output and "holds 98 s of data, not the 120 s" \
+        in r.output, r.output
     for args, what in ((("--start", 5000), "window start_s 5000: past the record's end (the record: "),
                        (("--start", 0.01, "--duration", 0.5), "holds no observation of rover (its record: "),
                        (("--duration", 0), "duration_s > 0"),

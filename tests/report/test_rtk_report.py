@@ -55,6 +55,8 @@ def test_rtk_page_recovers_the_motion_and_the_quality(tmp_path, frame):
     text = (out / "index.html").read_text()
     assert text.count("data:image/png;base64,") == 2 and "<script" not in text
     assert "program   : test writer, ratio 3" in text and "sha256" in text     # the solver's header as provenance
+    # the reference point in the file's own frame: an east/north/up file's is no ECEF position (it said "ECEF")
+    assert ("from the base)" in text and "(ECEF" not in text) if frame == "enu" else "(ECEF " in text
     assert sorted(p.name for p in out.iterdir()) == ["index.html", "report.json"]
 
 
