@@ -249,7 +249,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     antennas = {"antex": None if opt["antex"] is None else str(opt["antex"]),
                 **{who: (None if m is None else " ".join(m.name.split())) for who, m in ant.items()}}
-    return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "antennas": antennas, "warnings": warnings}
+    return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "antennas": antennas,
+            "output": str(out_csv), "mode": opt["mode"], "pos_frame": opt["pos_frame"],
+            "base_xyz_m": [float(v) for v in bx], "warnings": warnings}
 
 
 def _run_nav(nav_paths: list, systems: list, base_files: list, rover_files: list, paths: tuple) -> tuple:

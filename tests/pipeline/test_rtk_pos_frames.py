@@ -78,3 +78,19 @@ def test_a_direction_given_with_static_mode_is_refused():
     assert validate_options({"mode": "static"})["direction"] == "combined"          # (solve_rtk runs it forward)
     assert validate_options({"mode": "static", "direction": "forward"})["direction"] == "forward"
     assert validate_options({"mode": "kinematic", "direction": "backward"})["direction"] == "backward"
+
+
+def test_rtk_json_says_what_was_written_and_how(tmp_path):
+    """``rtk --json`` names its output, mode, frame and the base position it used (a new user's run had to look
+    them up in the file)."""
+    import json as _json
+    m = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
+    if not m.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    out = tmp_path / "s.pos"
+    r = run_cli("-q", "rtk", "--base", m / "base.obs", "--rover", m / "rover.obs", "--nav", m / "base.nav", "--signals",
+                "G:L1", "--mode", "static", "--pos-frame", "enu", "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    s = _json.loads(r.stdout)
+    assert s["output"] == str(out) and s["mode"] == "static" and s["pos_frame"] == "enu" and s["direction"] == "forward"
+    assert len(s["base_xyz_m"]) == 3 and 6.3e6 < float(np.linalg.norm(s["base_xyz_m"])) < 6.4e6
