@@ -25,6 +25,7 @@ def _rtk(tmp_path, monkeypatch, serial: bool, direction: str) -> tuple[bytes, di
     assert r.exit_code == 0, r.output
     summary = json.loads(r.output[r.output.index("{\n"):])         # after the warnings (stderr, mixed in)
     summary.pop("elapsed_s", None)
+    assert summary.pop("output") == str(out)                       # (the two runs' outputs are named apart)
     return out.read_bytes(), summary
 
 
