@@ -1585,6 +1585,30 @@ def _master_header_comments(found, master: str, comments: list, warnings: list |
 
 
 
+#: a broadcast ephemeris serves this far (s) on either side of its toe (as the readers' coverage check)
+_EPHEMERIS_REACH_S = 7200.0
+
+
+def _nav_day_note(path, toe_s: np.ndarray, receivers: dict, comments: list, warnings: list | None) -> None:
+    """A starter config's warning (and comment) when navigation file ``path`` covers none of the receivers'
+    observations (its ephemerides' toe ± :data:`_EPHEMERIS_REACH_S`): a file of another day, which ``ingest`` and
+    ``rtk`` refuse; ``config`` said nothing of it."""
+    spans = [(float(t.min()), float(t.max())) for t in (rx.raw["time_gps_s"].to_numpy(dtype=float)
+                                                        for rx in receivers.values()) if t.size]
+    if not toe_s.size or not spans:
+        return
+    lo, hi = float(np.min(toe_s)) - _EPHEMERIS_REACH_S, float(np.max(toe_s)) + _EPHEMERIS_REACH_S
+    if any(a <= hi and b >= lo for a, b in spans):
+        return
+    first, last = min(a for a, _ in spans), max(b for _, b in spans)
+    said = (f"{path}: its ephemerides (toe {span_text(toe_s)}) cover none of the observations ({gps_time_str(first)} – "
+            f"{gps_time_str(last)}): a navigation file of another day, which 'cdgps ingest' and 'cdgps rtk' refuse; "
+            f"give the navigation file of the observations' day")
+    comments.append(f"    {said}")
+    if warnings is not None:
+        warnings.append(said)
+
+
 def _long_baseline_notes(master: str, positions: dict, comments: list, warnings: list | None) -> None:
     """A starter config's warning (and comment) for each rover whose position lies at or beyond
     ``gnss.iono_threshold_km`` from the master's (their headers' or RTCM positions): ``init`` refuses such a baseline
@@ -1664,6 +1688,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         what = ", ".join(f"{int(per[c])} {system_list(c)}" for c in NAV_SYSTEMS if c in per) or "no"
         comments.append(f"nav {Path(p).name}: {what} ephemerides of {nav['sat'].nunique()} satellites, toe "
                         f"{span_text(nav['toe_gps_s'])}")
+        _nav_day_note(p, nav["toe_gps_s"].to_numpy(dtype=float), rinex_rx | ubx_rx, comments, warnings)
     rtcm = [n for n in ubx_rx if n in positions]          # a log with RTCM 1005/1006: a base station by its role
     chosen = rtcm[0] if rtcm else (with_pos[0] if with_pos else next(iter(files)))
     if master is None and notes is not None and len(files) > 1:

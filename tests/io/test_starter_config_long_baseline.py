@@ -48,3 +48,23 @@ def test_a_short_baseline_or_a_rover_header_alone_far_says_nothing(tmp_path):
     moved = tmp_path / "rover_header_off.rnx"
     moved.write_text("".join(lines))
     assert _config(tmp_path, d, moved) == []
+
+
+def test_config_says_a_navigation_file_of_another_day(tmp_path):
+    """A navigation file whose ephemerides cover none of the observations (another day) was taken by ``config`` with
+    nothing said, where ``ingest`` and ``rtk`` refuse it; now a warning names both spans."""
+    from tests._shared import REPO_ROOT
+    other = REPO_ROOT.parent / "shared" / "data" / "rinex" / "30400920.05n"
+    if not other.exists():
+        pytest.skip("../shared/data/rinex absent")
+    d = _pair(tmp_path, (3000.0, 1000.0, 500.0))
+    assert not [w for w in _warnings(tmp_path, d, d / "nav.rnx") if "cover none of the observations" in w]
+    said = [w for w in _warnings(tmp_path, d, other) if "cover none of the observations" in w]
+    assert len(said) == 1 and said[0].startswith(f"{other}: its ephemerides (toe 2005-") and "(2024-01-01" in said[0]
+
+
+def _warnings(tmp_path, d, nav) -> list:
+    r = run_cli("-q", "config", "--rinex", f"base={d / 'base.rnx'}", "--rinex", f"rover={d / 'rover.rnx'}", "--nav", nav,
+                "--master", "base", "-o", tmp_path / "n.toml", "--json")
+    assert r.exit_code == 0, r.output
+    return json.loads(r.stdout)["warnings"]
