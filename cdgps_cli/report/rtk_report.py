@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.provenance import _file, provenance_rows, report_date, software
 from cdgps_cli.io.solution_formats import Q_FIX, Q_FLOAT, Q_SINGLE, read_pos
 from cdgps_cli.report.envelope import DEFAULT_BINS, EnvelopeBins, envelope_line
@@ -100,7 +101,8 @@ def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = Non
                 src)
     data = {"provenance": prov, "summary": summary, "captions": dict(page.captions)}
     title = f"RTK solution report: {Path(pos_path).name}"
-    sub = (f"{n} epochs over {t[-1] - t[0]:g} s from GPS time {t[0]:.1f} s; {sol['frame']} solution file; "
+    sub = (f"{n} epochs over {t[-1] - t[0]:g} s from {gps_time_str(t[0])} (GPS time {t[0]:.1f} s); {sol['frame']} "
+           f"solution file; "
            f"report date {prov['date']}.")
     page.write(out_dir, title, sub, data)
     return data

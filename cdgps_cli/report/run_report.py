@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
+from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.atomic import output_set, write_bytes_atomic
 from cdgps_cli.io.provenance import provenance_rows, report_provenance
@@ -160,7 +161,7 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
 def _span_text(scan) -> str:
     """The record's span: run seconds, or on the GPS time scale (≥ 10⁶ s) its start and duration."""
     if scan.start_s >= 1e6:
-        return f"{scan.end_s - scan.start_s:g} s from GPS time {scan.start_s:.1f} s"
+        return f"{scan.end_s - scan.start_s:g} s from {gps_time_str(scan.start_s)} (GPS time {scan.start_s:.1f} s)"
     return f"{scan.start_s:g}–{scan.end_s:g} s"
 
 
