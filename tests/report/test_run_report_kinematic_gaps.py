@@ -36,3 +36,4 @@ def test_report_run_takes_states_whose_single_epoch_series_has_gaps(tmp_path):
     assert r.exit_code == 0 and "damaged" not in r.output, r.output
     page = (tmp_path / "report" / "index.html").read_text()
     assert "cdgps init on run.mcap, the whole record; rover: 15 of 15 integers fixed" in page    # provenance
+    assert "300 s from 2024-06-24 08:20:00 GPST (GPS time 1403252400.0 s)" in page              # the start as a date
