@@ -941,8 +941,7 @@ def _code_mean_of_moving_rover(rows, cols, static: tuple, xyz: tuple, sigma_amb:
     tens of metres leaves residuals of that size, so its mean's σ is metres, not the centimetres of a static code."""
     x, P = static
     base_xyz_m, rover_xyz0_m = xyz
-    code_rows = dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2))
-    xc, Pc = static_least_squares(code_rows, cols, x.size, base_xyz_m, rover_xyz0_m, **sigma_amb)
+    xc, Pc = static_least_squares(_code_only_rows(rows), cols, x.size, base_xyz_m, rover_xyz0_m, **sigma_amb)
     apart = float(np.linalg.norm(x[:3] - xc[:3]))
     sigma3 = float(np.sqrt(max(np.trace(P[:3, :3]) + np.trace(Pc[:3, :3]), 0.0)))
     if not (np.all(np.isfinite(xc[:3])) and apart > max(MOVING_ROVER_FLOAT_M, ORIGIN_MOVE_SIGMAS * sigma3)):
@@ -1011,7 +1010,13 @@ def static_float_offset(base, rover, base_xyz_m, rover_xyz0_m, options: dict | N
         x, P = static_least_squares(r, cols, n_state, base_xyz_m, rover_xyz0_m, sigma_amb_cycles=opt["amb_sigma_cycles"])
         return x[:3].copy(), P[:3, :3].copy()
     return (*solve(rows),
-            lambda: solve(dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2))))
+            lambda: solve(_code_only_rows(rows)))
+
+
+def _code_only_rows(rows) -> dict:
+    """SD rows whose phases take no part in a least squares (each phase row's variance :data:`_UNUSED_VARIANCE_M2`):
+    the same normal equations on the code alone."""
+    return dict(rows, var_phase=np.full_like(rows["var_phase"], _UNUSED_VARIANCE_M2))
 
 
 #: a row's variance (m²) that leaves it out of a least squares (its weight ≈ 10⁻¹² of a metre-σ code row's)

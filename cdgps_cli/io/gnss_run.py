@@ -51,6 +51,7 @@ from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.timescales import unix_ns_list
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_schema, message_schema, read_mcap
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
+from cdgps_cli.core.constants import MAX_EPHEMERIS_AGE_S
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
@@ -1585,19 +1586,15 @@ def _master_header_comments(found, master: str, comments: list, warnings: list |
 
 
 
-#: a broadcast ephemeris serves this far (s) on either side of its toe (as the readers' coverage check)
-_EPHEMERIS_REACH_S = 7200.0
-
-
 def _nav_day_note(path, toe_s: np.ndarray, receivers: dict, comments: list, warnings: list | None) -> None:
     """A starter config's warning (and comment) when navigation file ``path`` covers none of the receivers'
-    observations (its ephemerides' toe ± :data:`_EPHEMERIS_REACH_S`): a file of another day, which ``ingest`` and
+    observations (its ephemerides' toe ± :data:`MAX_EPHEMERIS_AGE_S`): a file of another day, which ``ingest`` and
     ``rtk`` refuse; ``config`` said nothing of it."""
     spans = [(float(t.min()), float(t.max())) for t in (rx.raw["time_gps_s"].to_numpy(dtype=float)
                                                         for rx in receivers.values()) if t.size]
     if not toe_s.size or not spans:
         return
-    lo, hi = float(np.min(toe_s)) - _EPHEMERIS_REACH_S, float(np.max(toe_s)) + _EPHEMERIS_REACH_S
+    lo, hi = float(np.min(toe_s)) - MAX_EPHEMERIS_AGE_S, float(np.max(toe_s)) + MAX_EPHEMERIS_AGE_S
     if any(a <= hi and b >= lo for a, b in spans):
         return
     first, last = min(a for a, _ in spans), max(b for _, b in spans)

@@ -36,7 +36,7 @@ from cdgps_cli import __version__
 from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic
 from cdgps_cli.io.coordinate_columns import coordinate_column
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml
-from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+from cdgps_cli.model.gps.orbits import MAX_EPHEMERIS_AGE_S, ecef_to_geodetic, enu_matrix
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.config.limits import SIMULATION_START_RANGE, check_on_earth, check_table_size
@@ -321,7 +321,7 @@ def _navigation(nav_paths, start_gps_s, duration_s: float, seed: int):
     nav = nav.sort_values(["sat", "toe_gps_s"], kind="stable").reset_index(drop=True)
     if start_gps_s is None:
         start_gps_s = math.ceil(float(nav["toe_gps_s"].min()) / 3600.0) * 3600.0
-    lo, hi = float(nav["toe_gps_s"].min()) - 7200.0, float(nav["toe_gps_s"].max()) + 7200.0
+    lo, hi = float(nav["toe_gps_s"].min()) - MAX_EPHEMERIS_AGE_S, float(nav["toe_gps_s"].max()) + MAX_EPHEMERIS_AGE_S
     if start_gps_s < lo or start_gps_s + duration_s > hi:
         raise CdgpsError(f"the navigation data ({gps_time_str(lo)} – {gps_time_str(hi)} with ±2 h validity) do not cover "
                          f"the simulated span {gps_time_str(start_gps_s)} – {gps_time_str(start_gps_s + duration_s)}; "

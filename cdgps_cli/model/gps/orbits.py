@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
+from cdgps_cli.core.constants import MAX_EPHEMERIS_AGE_S, SPEED_OF_LIGHT_M_S  # noqa: F401 (MAX_EPHEMERIS_AGE_S: re-exported)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS
@@ -106,8 +106,6 @@ WGS84_A = 6378137.0
 """WGS-84 semi-major axis, m."""
 WGS84_F = 1.0 / 298.257223563
 """WGS-84 flattening."""
-MAX_EPHEMERIS_AGE_S = 7200.0
-"""Largest |t − toe| for which a broadcast ephemeris is used, s (±2 h; the nominal fit interval is 4 h)."""
 MAX_EPHEMERIS_AGE_GLONASS_S = 1800.0
 """Largest |t − t_b| for a GLONASS state-vector record, s (records come every 30 min; the ICD's
 simplified integration is specified for 15 min)."""
