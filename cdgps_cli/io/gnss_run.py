@@ -1606,6 +1606,31 @@ def _nav_day_note(path, toe_s: np.ndarray, receivers: dict, comments: list, warn
         warnings.append(said)
 
 
+def _nav_comments(nav_paths, receivers: dict, comments: list, warnings: list | None) -> None:
+    """A starter config's comment line on each navigation file (its ephemerides per system, their toe span), and
+    :func:`_nav_day_note`'s warning when it covers none of the ``receivers``' observations."""
+    from cdgps_cli.io.rinex import NAV_SYSTEMS  # noqa: PLC0415
+
+    for p in nav_paths:
+        nav = read_rinex_nav(p, systems=NAV_SYSTEMS)
+        per = nav["sat"].astype(str).str[0].value_counts()
+        what = ", ".join(f"{int(per[c])} {system_list(c)}" for c in NAV_SYSTEMS if c in per) or "no"
+        comments.append(f"nav {Path(p).name}: {what} ephemerides of {nav['sat'].nunique()} satellites, toe "
+                        f"{span_text(nav['toe_gps_s'])}")
+        _nav_day_note(p, nav["toe_gps_s"].to_numpy(dtype=float), receivers, comments, warnings)
+
+
+def _receiver_positions(paths: dict, receivers: dict, master: str, positions: dict, nav_paths,
+                        receiver_position=None) -> dict:
+    """Where ``init`` places each antenna (ECEF m, or None): the master's configured position (RTCM, single-point)
+    or header; each other receiver's by ``receiver_position(name, path, receiver, nav_paths)`` (a header far off
+    its single-point position replaced by it), else its header's."""
+    where = {n: (receiver_position(n, paths[n], rx, nav_paths) if receiver_position is not None
+                 else header_position_m(rx.header)) for n, rx in receivers.items() if n != master}
+    where[master] = positions.get(master, header_position_m(receivers[master].header) if master in receivers else None)
+    return where
+
+
 def _long_baseline_notes(master: str, positions: dict, comments: list, warnings: list | None) -> None:
     """A starter config's warning (and comment) for each rover whose position lies at or beyond
     ``gnss.iono_threshold_km`` from the master's (their headers' or RTCM positions): ``init`` refuses such a baseline
@@ -1677,15 +1702,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
             positions[n] = tuple(base["arp_ecef_m"])
             with_pos.append(n)
         files[n] = ("ubx", rel(p))
-    for p in nav_paths:
-        from cdgps_cli.io.rinex import NAV_SYSTEMS  # noqa: PLC0415
-
-        nav = read_rinex_nav(p, systems=NAV_SYSTEMS)
-        per = nav["sat"].astype(str).str[0].value_counts()
-        what = ", ".join(f"{int(per[c])} {system_list(c)}" for c in NAV_SYSTEMS if c in per) or "no"
-        comments.append(f"nav {Path(p).name}: {what} ephemerides of {nav['sat'].nunique()} satellites, toe "
-                        f"{span_text(nav['toe_gps_s'])}")
-        _nav_day_note(p, nav["toe_gps_s"].to_numpy(dtype=float), rinex_rx | ubx_rx, comments, warnings)
+    _nav_comments(nav_paths, rinex_rx | ubx_rx, comments, warnings)
     rtcm = [n for n in ubx_rx if n in positions]          # a log with RTCM 1005/1006: a base station by its role
     chosen = rtcm[0] if rtcm else (with_pos[0] if with_pos else next(iter(files)))
     if master is None and notes is not None and len(files) > 1:
@@ -1716,9 +1733,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         header_off = master_header_check(master, rinex[master], rinex_rx[master], nav_paths)
         _master_header_comments(header_off, master, comments, warnings)
     if not header_off:                  # (a master header known to be off says nothing of the baselines' lengths)
-        where = {n: (receiver_position(n, (rinex | ubx)[n], rx, nav_paths) if receiver_position is not None
-                     else header_position_m(rx.header)) for n, rx in (rinex_rx | ubx_rx).items() if n != master}
-        where[master] = positions.get(master, header_position_m(rinex_rx[master].header) if master in rinex_rx else None)
+        where = _receiver_positions(rinex | ubx, rinex_rx | ubx_rx, master, positions, nav_paths, receiver_position)
         _long_baseline_notes(master, where, comments, warnings)
     sig = list(signals or ())
     text = gnss_config_toml(files, [rel(p) for p in nav_paths], master, name=name or "-".join(files),
