@@ -377,8 +377,9 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.option("--rover-antenna", "rover_antenna", default=None,
               help="The rover's antenna, as --base-antenna [its header's].")
 @click.option("--direction", type=click.Choice(["forward", "backward", "combined"]), default=None,
-              help="Kinematic passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes "
-                   "agree (or one's fix agrees with the other's float); disagreeing fixes are rejected [combined].")
+              help="Passes: forward, backward, or both combined - an epoch is fixed where the passes' fixes agree (or "
+                   "one's fix agrees with the other's float); disagreeing fixes are rejected [kinematic: combined; "
+                   "static: forward, whose last epoch uses them all].")
 @click.option("--code-correlation", "code_correlation_s", type=float, default=None,
               help="Correlation time of the code errors, s: their variance is inflated by (1+ρ)/(1−ρ), ρ = e^(−Δt/τ), so "
                    "a minute of correlated multipath is not taken as 60 independent ranges (0: white, as RTKLIB) "

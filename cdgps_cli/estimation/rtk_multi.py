@@ -591,8 +591,8 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     dict
         ``time_gps_s`` (n,), ``float_xyz_m`` / ``fixed_xyz_m`` (n, 3; NaN rows where not fixed),
         ``fixed`` (n,) bool, ``n_dd_ambiguities`` (n,), ``ratio`` (n,), ``iono_model``, ``last_xyz_m``
-        (the last epoch's fixed, else float, position), ``static_xyz_m`` (that position in static mode, where it is
-        the static solution; None in the kinematic modes),
+        (the last epoch's fixed, else float, position), ``static_xyz_m`` (static mode: the solution from every epoch,
+        the forward pass's last epoch, or the backward pass's first; None in the kinematic modes),
         ``float_cov_m2`` / ``fixed_cov_m2`` (n, 3, 3; ECEF, m²; NaN where not fixed), ``n_satellites`` (n,),
         ``epoch_pairing`` (the summary of :func:`~cdgps_cli.measurement.epoch_pairing.pair_epochs`: rover
         epochs used, bridged, dropped with reasons) and ``base_age_s`` (n,; rover − base time, s); in
@@ -625,16 +625,16 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
-    direction = "forward" if opt["mode"] == "static" else opt["direction"]
+    direction = "forward" if opt["mode"] == "static" and "direction" not in (options or {}) else opt["direction"]
     res = _epochs_with_dd(_passes(rows, times, direction, opt, base_xyz, origin, iono, progress))
     times, age_s, summary = times[res["with_dd"]], pairs.age_s[res["with_dd"]], without_dd(pairs.summary, res["without_dd"])
     ok = res["fixed"]
-    last = res["fixed_xyz"][-1] if ok[-1] else res["float_xyz"][-1]
+    last = _solution_at(res, -1)
     return {"time_gps_s": times, "float_xyz_m": res["float_xyz"], "fixed_xyz_m": np.where(ok[:, None], res["fixed_xyz"], np.nan),
             "fixed": ok, "n_dd_ambiguities": res["n_fixed"], "ratio": res["ratio"],
             "iono_model": "estimated" if iono else "neglected (short baseline)", "baseline_km": length_km,
             "wet_troposphere": _wet_summary(res, opt),
-            "last_xyz_m": last, "static_xyz_m": last if opt["mode"] == "static" else None, "epoch_pairing": {**summary, "interpolated": rows["interpolated_epochs"]},
+            "last_xyz_m": last, "static_xyz_m": _all_epochs_solution(res, direction) if opt["mode"] == "static" else None, "epoch_pairing": {**summary, "interpolated": rows["interpolated_epochs"]},
             "base_age_s": age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
@@ -689,6 +689,19 @@ def _wet_summary(res: dict, opt) -> dict:
     last = res.get("wet_last") or {}
     return {"model": "estimated", "threshold_km": opt["tropo_threshold_km"], "initial_m": opt["tropo_initial_m"],
             "sigma_m": opt["tropo_sigma_m"], "rw_m_per_sqrt_s": opt["tropo_rw_m_per_sqrt_s"], **last}
+
+
+def _solution_at(res: dict, k: int) -> np.ndarray:
+    """A pass's position at epoch ``k``: fixed where it is fixed, else float (ECEF m (3,))."""
+    return res["fixed_xyz"][k] if res["fixed"][k] else res["float_xyz"][k]
+
+
+def _all_epochs_solution(res: dict, direction: str) -> np.ndarray:
+    """Static mode's solution from every epoch (ECEF m (3,)): the forward pass's last epoch (forward; combined, whose
+    per-epoch means count one epoch twice), the backward pass's first (backward)."""
+    if direction == "backward":
+        return _solution_at(res, 0)
+    return np.array(res["forward_last"]) if direction == "combined" else _solution_at(res, -1)
 
 
 def _epochs_with_dd(res: dict) -> dict:
@@ -767,6 +780,8 @@ def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) 
         fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
         bwd = job.result()
     out = _combine(fwd, bwd)
+    with_dd = np.flatnonzero(fwd["ns"] > 0)
+    out["forward_last"] = tuple(_solution_at(fwd, int(with_dd[-1]) if with_dd.size else n_ep - 1))   # (not per epoch)
     if "wet_last" in fwd:
         out["wet_last"] = fwd["wet_last"]          # (the forward pass's last state: every epoch's information)
     return _with_float_variance_factor(out, fwd, bwd) if not opt["fix"] else dict(out, float_variance=None)

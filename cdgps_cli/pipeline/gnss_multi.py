@@ -96,9 +96,8 @@ def validate_options(options: dict) -> dict:
             opt["tropo_threshold_km"] = float(opt["tropo_threshold_km"])
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
-    elif opt["mode"] == "static" and options.get("direction") not in (None, "forward"):
-        bad.append(f"direction: {options['direction']!r} given with mode 'static', whose solution is one forward pass "
-                   f"over every epoch (its last line uses them all); leave direction out, or use mode 'kinematic'")
+    elif opt["mode"] == "static" and options.get("direction") is None:
+        opt["direction"] = "forward"                # RTKLIB's static default: one pass, its last epoch uses them all
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
         bad.append(f"code_correlation_s: expected a number of seconds >= 0, got {opt['code_correlation_s']}")
     if opt["code_noise"] not in ("auto", "model"):

@@ -68,16 +68,15 @@ def test_a_frame_for_another_output_or_an_unknown_one_is_refused(tmp_path):
         validate_options({"iono_threshold_km": -1})
 
 
-def test_a_direction_given_with_static_mode_is_refused():
-    """``--mode static --direction backward`` ran forward and said "forward" (a sweep of real files): static mode is one
-    forward pass, so a direction other than forward given with it is refused; the default passes."""
-    with pytest.raises(CdgpsError, match=r"direction: 'backward' given with mode 'static'"):
-        validate_options({"mode": "static", "direction": "backward"})
-    with pytest.raises(CdgpsError, match=r"direction: 'combined' given with mode 'static'"):
-        validate_options({"mode": "static", "direction": "combined"})
-    assert validate_options({"mode": "static"})["direction"] == "combined"          # (solve_rtk runs it forward)
-    assert validate_options({"mode": "static", "direction": "forward"})["direction"] == "forward"
-    assert validate_options({"mode": "kinematic", "direction": "backward"})["direction"] == "backward"
+def test_static_mode_runs_forward_unless_a_direction_is_given():
+    """Static mode is one forward pass by default (RTKLIB's), and runs the direction given (once refused; before that
+    it ran forward and said "forward": ``tests/estimation/test_rtk_static_directions.py``)."""
+    assert validate_options({"mode": "static"})["direction"] == "forward"
+    for d in ("forward", "backward", "combined"):
+        assert validate_options({"mode": "static", "direction": d})["direction"] == d
+    assert validate_options({"mode": "kinematic"})["direction"] == "combined"
+    with pytest.raises(CdgpsError, match=r"direction: expected 'forward', 'backward' or 'combined', got 'both'"):
+        validate_options({"mode": "static", "direction": "both"})
 
 
 def test_rtk_json_says_what_was_written_and_how(tmp_path):
