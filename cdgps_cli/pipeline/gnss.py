@@ -443,7 +443,7 @@ def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigm
 def _filtered(model, dyn, t: np.ndarray, P0: np.ndarray, smooth: bool):
     """The engine's forward filter of ``model`` under ``dyn`` from x = 0 ± ``P0`` (one update per epoch: the model is
     linear) and, when ``smooth``, its RTS pass: (x, P) smoothed (or filtered), (x, P) filtered, NIS (N,)."""
-    fr = filter_numpy(model, dyn, t, np.zeros(P0.shape[0]), P0, max_iterations=1)
+    fr = filter_numpy(model, dyn, t, np.zeros(P0.shape[0]), P0, max_iterations=1, keep_rows=False)
     xf, pf = fr["x"], fr["P"]
     if not smooth:
         return xf, pf, xf, pf, fr["nis"]
