@@ -697,11 +697,9 @@ def _solution_at(res: dict, k: int) -> np.ndarray:
 
 
 def _all_epochs_solution(res: dict, direction: str) -> np.ndarray:
-    """Static mode's solution from every epoch (ECEF m (3,)): the forward pass's last epoch (forward; combined, whose
-    per-epoch means count one epoch twice), the backward pass's first (backward)."""
-    if direction == "backward":
-        return _solution_at(res, 0)
-    return np.array(res["forward_last"]) if direction == "combined" else _solution_at(res, -1)
+    """Static mode's solution from every epoch (ECEF m (3,)): the forward pass's last epoch (forward; combined, every
+    epoch's, :func:`_static_smoothed`), the backward pass's first (backward)."""
+    return _solution_at(res, 0 if direction == "backward" else -1)
 
 
 def _epochs_with_dd(res: dict) -> dict:
@@ -779,12 +777,38 @@ def _passes(rows, times, direction: str, opt, base_xyz, origin, iono, progress) 
     with beside.start(backward) as job:       # the two passes are independent: the backward one on the second core
         fwd = _filter_pass(rows, times, range(n_ep), opt, base_xyz, origin, iono, progress)
         bwd = job.result()
-    out = _combine(fwd, bwd)
-    with_dd = np.flatnonzero(fwd["ns"] > 0)
-    out["forward_last"] = tuple(_solution_at(fwd, int(with_dd[-1]) if with_dd.size else n_ep - 1))   # (not per epoch)
+    out = _combine(fwd, bwd) if opt["mode"] != "static" else _static_smoothed(fwd, bwd)
     if "wet_last" in fwd:
         out["wet_last"] = fwd["wet_last"]          # (the forward pass's last state: every epoch's information)
     return _with_float_variance_factor(out, fwd, bwd) if not opt["fix"] else dict(out, float_variance=None)
+
+
+#: the per-epoch results of a pass that hold its position (static mode: no velocity)
+_POSITION_KEYS = ("float_xyz", "fixed_xyz", "float_cov", "fixed_cov")
+
+
+def _static_smoothed(f: dict, b: dict) -> dict:
+    """Static mode's passes combined: the smoother of a constant position, which at every epoch is the solution
+    from every epoch.  Both passes hold one: the forward pass at its last epoch with a DD, the backward pass at its
+    first; these two are combined as :func:`_combine` combines an epoch (fixed where both are fixed and agree, or one
+    fixed agrees with the other's float; two fixes that disagree: float, every epoch counted rejected) and given to
+    every epoch.  The other per-epoch columns (satellites, ratio, integers fixed) are :func:`_combine`'s.
+
+    (Combining each epoch's two partial solutions instead, as for a moving rover, fixed at most the epochs where the
+    two partial static solutions agreed within their formal σ: on a real F9P pair 648 of 829 epochs, where two
+    static solutions from hours of data differ by 2.5 cm in height, and on the real car's last 48 s seven epochs
+    float 37 cm off, while RTKLIB's combined static run fixed 828 and 48.)"""
+    out = _combine(f, b)
+    kf, kb = (np.flatnonzero(p["ns"] > 0) for p in (f, b))
+    if not (kf.size and kb.size):
+        return out
+    one = _combine(*({k: (v[[i]] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == f["ns"].size else v)
+                      for k, v in p.items()} for p, i in ((f, kf[-1]), (b, kb[0]))))
+    for key in _POSITION_KEYS:
+        out[key][:] = one[key][0]
+    out["fixed"] = np.full(out["fixed"].shape, bool(one["fixed"][0]))
+    out["rejected"] = int(out["fixed"].size) if one["rejected"] else 0
+    return out
 
 
 def receivers_code_noise(base: pd.DataFrame, rover: pd.DataFrame, opt: dict) -> dict:

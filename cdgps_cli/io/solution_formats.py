@@ -91,6 +91,10 @@ def _signed_root(c):
     return np.sign(c) * np.sqrt(np.abs(c))
 
 
+#: the largest ratio a .pos line gives, as RTKLIB caps it (its fixed-width column; a held static fix reaches 10⁵)
+POS_RATIO_MAX = 999.9
+
+
 def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header: list[str],
              velocity_neu=None) -> str:
     """An RTKLIB ``.pos`` file.
@@ -107,7 +111,7 @@ def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header
     cov : array_like (n, 3, 3)
         Covariance of the coordinates, m² (for ``llh``: of north, east, up).
     age_s, ratio : array_like (n,)
-        Differential age (s) and the ratio test value (0 where none).
+        Differential age (s) and the ratio test value (0 where none; written at most :data:`POS_RATIO_MAX`).
     frame : {"llh", "xyz", "enu"}
     header : list of str
         Lines for the ``%`` header (program, inputs, options, reference position …).
@@ -137,7 +141,8 @@ def pos_text(time_gps_s, coords, q, ns, cov, age_s, ratio, *, frame: str, header
     for k in range(c.shape[0]):
         out.append(f"{_calendar(float(time_gps_s[k]))} " + fmt.format(*c[k]) + f" {int(q[k]):3d} {int(ns[k]):3d} "
                    + " ".join(f"{_unsigned_zero(v, 4):8.4f}" for v in (*sd[k], *cr[k]))
-                   + f" {_unsigned_zero(age_s[k], 2):6.2f} {float(ratio[k]):6.1f}" + (vel[k] if vel else ""))
+                   + f" {_unsigned_zero(age_s[k], 2):6.2f} {min(float(ratio[k]), POS_RATIO_MAX):6.1f}"
+                   + (vel[k] if vel else ""))
     return "\n".join(out) + "\n"
 
 

@@ -419,7 +419,8 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     ratio = np.array([finite_or(r, 0.0) for r in res["ratio"]])
     sig_enu = np.sqrt(np.abs(np.einsum("nii->ni", cov_enu)))
     suffix = Path(str(out_path)).suffix.lower()
-    desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
+    desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, {_passes_text(opt['mode'], res['direction'])}, "
+            f"signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
             f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}"
             + (", zenith wet delays estimated" if res["wet_troposphere"]["model"] == "estimated" else "")
             + (f", receiver antenna models from {opt['antex']}" if opt.get("antex") else ""))
@@ -446,7 +447,7 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     if any(signal(x).fdma_step_hz for x in sigs):
         buf.write(f"# glonass {'fixed (glonass_fix: identical receivers)' if opt['glonass_fix'] else 'float'} "
                   "(FDMA: DD ambiguities are not integer multiples of one wavelength)\n")
-    buf.write(f"# mode {opt['mode']} ionosphere {res['iono_model']} baseline_km {res['baseline_km']:.3f} ratio {opt['ratio']}\n")
+    buf.write(f"# mode {opt['mode']} direction {res['direction']} ionosphere {res['iono_model']} baseline_km {res['baseline_km']:.3f} ratio {opt['ratio']}\n")
     buf.write(csv_text({"time_gps_s": t, "x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2],
                         "fixed": res["fixed"].astype(int), "n_dd_ambiguities": res["n_dd_ambiguities"],
                         "ratio": res["ratio"], "n_satellites": ns, "age_s": age,
@@ -455,6 +456,18 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
                         **_velocity_columns(vel)},
                        float_format="%.4f"))
     return buf.getvalue()
+
+
+def _passes_text(mode: str, direction: str) -> str:
+    """The passes a solution comes from, for the files' headers; in static mode, which line holds the solution from
+    every epoch."""
+    text = {"forward": "forward pass", "backward": "backward pass",
+            "combined": "forward and backward passes combined"}[direction]
+    if mode == "static":
+        text += {"forward": " (the last line: the solution from every epoch)",
+                 "backward": " (the first line: the solution from every epoch)",
+                 "combined": " (every line: the solution from every epoch)"}[direction]
+    return text
 
 
 def _velocity_columns(vel) -> dict:

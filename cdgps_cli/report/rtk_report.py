@@ -64,21 +64,35 @@ def _reference_text(ref, frame: str) -> str:
     return f"ECEF {ref[0]:.3f}, {ref[1]:.3f}, {ref[2]:.3f} m"
 
 
+def _in_time_order(sol: dict) -> tuple[dict, bool]:
+    """``sol`` (:func:`~cdgps_cli.io.solution_formats.read_pos`) with its epochs in time order, and whether the file
+    gave them in decreasing order (RTKLIB writes a backward solution, ``pos1-soltype=backward``, from its last epoch)."""
+    t = np.asarray(sol["time_gps_s"])
+    if t.size < 2 or not np.all(np.diff(t) < 0):
+        return sol, False
+    return {k: (v[::-1] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == t.size else v)
+            for k, v in sol.items()}, True
+
+
 def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = None, n_bins: int = DEFAULT_BINS) -> dict:
     """Write ``index.html`` and ``report.json`` for the solution file ``pos_path``; returns the summary."""
     sol = read_pos(pos_path)
     n = len(sol["time_gps_s"])
     if n == 0:
         raise CdgpsError(f"{pos_path}: no solution epochs (only header lines)")
+    sol, descending = _in_time_order(sol)
     t = sol["time_gps_s"]
     if np.any(np.diff(t) <= 0):
         k = int(np.flatnonzero(np.diff(t) <= 0)[0])
-        raise CdgpsError(f"{pos_path}: epoch {k + 2} is not after epoch {k + 1} (times must increase)")
+        raise CdgpsError(f"{pos_path}: epoch {k + 2} is not after epoch {k + 1} (times must increase, or all "
+                         f"decrease as in RTKLIB's backward solution)")
     when = report_date([pos_path], date)
     prov = {"command": "cdgps report rtk", "options": {"--date": date}, "inputs": [_file("solution (.pos)", pos_path)],
             "software": software(), "date": when["date"], "date_source": when["source"]}
     enu, sd, ref = pos_enu(sol)
     summary = _summary(sol, enu)
+    if descending:
+        summary["file_epoch_order"] = "descending (RTKLIB's backward solution), read in time order"
     page = _Page()
     rows = provenance_rows(prov) + [["solution header", "\n".join(sol["header"])]]
     page.section("provenance", "What was run (provenance)", "<table class='prov'><tr><th>what</th><th>value</th></tr>"
@@ -86,7 +100,9 @@ def rtk_report(pos_path: str | Path, out_dir: str | Path, date: str | None = Non
                  + "</table>")
     page.section("summary", "Summary", _html_table(_summary_rows(summary), ["quantity", "value"])
                  .replace("<table>", "<table class='kv'>", 1))
-    src = (f"{Path(pos_path).name}: every epoch ({n}), drawn as the minimum and maximum of each of "
+    src = (f"{Path(pos_path).name}: every epoch ({n}"
+           + ("; the file lists them from the last, as RTKLIB writes a backward solution" if descending else "")
+           + f"), drawn as the minimum and maximum of each of "
            f"{min(n_bins, n)} bins per quality class.")
     page.section("enu", "Displacement, satellites and ratio")
     colours = "green fix, orange float, red single" + ("" if np.isin(sol["q"], list(QUALITY)).all()

@@ -53,9 +53,58 @@ def test_combined_fixes_every_epoch_where_one_pass_leaves_some_float(runs):
 def test_the_passes_that_saw_every_epoch_agree(runs):
     x = {d: np.array(runs[d][0]["static_xyz_m"]) for d in runs}
     assert np.abs(x["forward"] - x["backward"]).max() < 1e-6                    # one solution, two orders: rounding
-    assert np.array_equal(x["combined"], x["forward"])                         # combined reports the forward pass's
+    assert np.abs(x["combined"] - x["forward"]).max() < 1e-6                   # their weighted mean
     pos = {d: runs[d][1]["coords"] for d in runs}
     assert np.abs(pos["forward"][-1] - x["forward"]).max() < 1e-4               # (.pos: 0.1 mm)
     assert np.abs(pos["backward"][0] - x["backward"]).max() < 1e-4
-    # every combined epoch is the weighted mean of two estimates of one point: within a millimetre of it
-    assert np.abs(pos["combined"] - x["forward"]).max() < 1e-3
+    # combined is the smoother of a constant: every epoch holds the solution from every epoch
+    assert np.abs(pos["combined"] - x["combined"]).max() < 1e-4
+
+
+def _passes(n, fwd_fixed, bwd_fixed, fwd_xyz, bwd_xyz, sigma_m=1e-3):
+    """Two synthetic static passes of n epochs whose solutions from every epoch are ``fwd_xyz`` (the forward pass's
+    last epoch) and ``bwd_xyz`` (the backward pass's first); the other epochs hold partial solutions 5 cm off."""
+    def one(fixed, xyz, k_all):
+        x = np.tile(np.asarray(xyz, float) + 0.05, (n, 1))
+        x[k_all] = xyz
+        cov = np.tile(np.eye(3) * sigma_m**2, (n, 1, 1))
+        fixed_xyz = np.where(np.asarray(fixed)[:, None], x, np.nan)
+        return {"float_xyz": x + 1e-3, "float_cov": cov * 100, "fixed_xyz": fixed_xyz, "fixed_cov": cov,
+                "fixed": np.asarray(fixed), "ratio": np.full(n, 5.0), "n_fixed": np.full(n, 6),
+                "partial": np.zeros(n, bool), "ns": np.full(n, 8), "wrong_fix_resets": np.zeros(n, bool),
+                "released": np.zeros(n, bool), "held": np.zeros(n, bool)}
+    return one(fwd_fixed, fwd_xyz, -1), one(bwd_fixed, bwd_xyz, 0)
+
+
+def test_static_combined_is_the_solution_from_every_epoch_at_every_epoch():
+    """Closed cases of :func:`~cdgps_cli.estimation.rtk_multi._static_smoothed`: the partial solutions in between
+    (5 cm off, fixed) play no part; the two solutions from every epoch decide, as one epoch of the combination."""
+    from cdgps_cli.estimation.rtk_multi import _static_smoothed
+    n = 5
+    f, b = _passes(n, [False, True, True, True, True], [True, True, True, True, False], [1.0, 2.0, 3.0],
+                   [1.0, 2.0, 3.0002])
+    out = _static_smoothed(f, b)
+    assert out["fixed"].all() and out["rejected"] == 0
+    assert np.allclose(out["fixed_xyz"], [1.0, 2.0, 3.0001], atol=1e-12)       # equal σ: the mean
+    assert np.allclose(out["fixed_cov"], np.eye(3) * 1e-6)
+    # two fixes from every epoch 3 cm apart (30 σ): one is wrong; every epoch float, each counted rejected
+    f, b = _passes(n, [True] * n, [True] * n, [1.0, 2.0, 3.0], [1.0, 2.0, 3.03])
+    out = _static_smoothed(f, b)
+    assert not out["fixed"].any() and out["rejected"] == n and np.isnan(out["fixed_xyz"]).all()
+    assert np.allclose(out["float_xyz"], out["float_xyz"][0]) and np.isfinite(out["float_xyz"]).all()
+    # only the backward pass's solution from every epoch is fixed, and its float agrees: fixed there, everywhere
+    f, b = _passes(n, [True] * (n - 1) + [False], [True] * n, [1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    out = _static_smoothed(f, b)
+    assert out["fixed"].all() and np.allclose(out["fixed_xyz"], [1.0, 2.0, 3.0], atol=1e-12)
+
+
+def test_the_files_say_which_passes_and_which_line_holds_the_solution(runs):
+    """The three .pos files had one header: nothing said that a backward static solution's all-epoch line is its
+    first.  The ratio column stops at RTKLIB's 999.9 (a static fix reaches 10⁵, which broke the fixed width)."""
+    heads = {d: "\n".join(runs[d][1]["header"]) for d in runs}
+    assert "mode static, forward pass (the last line: the solution from every epoch)" in heads["forward"]
+    assert "mode static, backward pass (the first line: the solution from every epoch)" in heads["backward"]
+    assert "forward and backward passes combined (every line: the solution from every epoch)" in heads["combined"]
+    for d in runs:
+        r = runs[d][1]["ratio"]
+        assert r.max() == pytest.approx(999.9) and np.all(r <= 999.9)

@@ -112,3 +112,31 @@ def test_rtk_report_refuses_a_last_line_cut_short(tmp_path):
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
     assert f"{pos}, line {len(lines)}: 20 fields, the column header promises 24" in r.output, r.output
     assert not (tmp_path / "rep").exists()
+
+
+def test_rtk_report_reads_a_backward_solution_in_time_order(tmp_path):
+    """RTKLIB writes a backward solution (``pos1-soltype=backward``) from its last epoch: `report rtk` refused it
+    ("epoch 2 is not after epoch 1"); it now reads the epochs in time order, says so, and finds the same numbers as
+    for the file in time order.  Times that go back and forth are still refused."""
+    pos, _ = _pos(tmp_path, "llh")
+    lines = pos.read_text().splitlines(keepends=True)
+    head = [ln for ln in lines if ln.startswith("%")]
+    body = [ln for ln in lines if not ln.startswith("%")]
+    back = tmp_path / "back.pos"
+    back.write_text("".join(head + body[::-1]))
+    got = {}
+    for name, p in (("forward", pos), ("backward", back)):
+        out = tmp_path / f"rep_{name}"
+        r = CliRunner().invoke(main, ["report", "rtk", str(p), "-o", str(out), "--date", "2026-12-04", "--json"])
+        assert r.exit_code == 0, r.output
+        got[name] = json.loads(r.stdout)
+    order = got["backward"].pop("file_epoch_order")
+    assert "descending" in order and "file_epoch_order" not in got["forward"]
+    assert {k: v for k, v in got["backward"].items() if k not in ("output", "outputs")} == \
+        {k: v for k, v in got["forward"].items() if k not in ("output", "outputs")}
+    assert "as RTKLIB writes a backward solution" in (tmp_path / "rep_backward" / "index.html").read_text()
+    mixed = tmp_path / "mixed.pos"
+    mixed.write_text("".join(head + body[:10] + body[20:30][::-1] + body[30:]))
+    r = CliRunner().invoke(main, ["report", "rtk", str(mixed), "-o", str(tmp_path / "rep_mixed")])
+    assert r.exit_code == 2 and "is not after epoch" in r.output and "decrease as in RTKLIB's backward" in r.output
+    assert not (tmp_path / "rep_mixed").exists()
