@@ -54,6 +54,19 @@ class SpectraOptions:
     def echo(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
 
+    def command_line(self) -> dict:
+        """The options ``spectra`` and the reports take on the command line (:data:`SPECTRA_CLI_FIELDS`), by their
+        names there (``--segment-s`` …)."""
+        return {f"--{k.replace('_', '-')}": v for k, v in self.echo().items() if k in SPECTRA_CLI_FIELDS}
+
+    def settings(self) -> dict:
+        """The others: fixed settings with no command-line option."""
+        return {k: v for k, v in self.echo().items() if k not in SPECTRA_CLI_FIELDS}
+
+
+#: the :class:`SpectraOptions` fields ``spectra``, ``report run`` and ``report spectrum`` take on the command line
+SPECTRA_CLI_FIELDS = ("coords", "segment_s", "overlap", "pad")
+
 
 def column_sums(x: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
     """Σ over rows of x (N, m), the rows added one after the other to ``start`` (default 0).

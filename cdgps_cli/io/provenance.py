@@ -158,6 +158,8 @@ def provenance_rows(p: dict) -> list[list[str]]:
                  + ", ".join(f"{k} {v}" for k, v in sw.items() if k not in ("cdgps", "python") and v)])
     rows.append(["command", command_line(p)])
     rows.append(["options", "; ".join(f"{k} = {_opt_text(v)}" for k, v in p["options"].items())])
+    if p.get("settings"):                       # fixed settings, no command-line option (the command row omits them)
+        rows.append(["settings", "; ".join(f"{k} = {_opt_text(v)}" for k, v in p["settings"].items())])
     for f in p["inputs"]:
         rows.append([f"input {f['role']}", f"{f['path']} ({f['bytes']} bytes), sha256 {f['sha256']}"])
     e = p.get("estimated_from")                 # reports on STATES only

@@ -128,9 +128,9 @@ def run_report(states, out_dir: str | Path, run=None, truth_dir: str | Path | No
         raise CdgpsError(f"--overlap {opt.overlap:g}: expected a fraction of a segment in [0, 1)")
     options = {"--gyro": None if run is None else run.path, "--truth": None if truth_dir is None else str(truth_dir),
                "--angle": angle, "--survey-deg": survey_deg, "--no-spectra": None if spectra else True,
-               "--date": date, **{f"--{k.replace('_', '-')}": v
-                                                                                for k, v in opt.echo().items()}}
+               "--date": date, **opt.command_line()}
     prov = report_provenance("cdgps report run", options, states, run, date)
+    prov["settings"] = opt.settings()
     truth = None if truth_dir is None else read_truth(truth_dir, states)
     static = None
     if angle is not None:                           # first: a bad expression fails before the long pass
@@ -198,14 +198,16 @@ def _stage_rows(states, run) -> list[list[str]]:
                 _init_fixing_text(init)]
         rows.append(["INIT.json (attached to the STATES)",
                      "; ".join(x for x in made if x) + "; options: "
-                     + "; ".join(f"{k} = {v}" for k, v in sorted(io.items()) if not isinstance(v, (dict, list)))])
+                     + "; ".join(f"{k} = {v}" for k, v in sorted(io.items())
+                                 if v is not None and not isinstance(v, (dict, list)))])
     try:
         eo = json.loads(meta.get("options", "{}"))
     except ValueError:
         eo = {}
     rows.append(["STATES.mcap", f"{meta.get('created_by', 'cdgps estimate')} (cdgps {meta.get('cdgps_version', '?')}) "
                  f"on {meta.get('run', '?')}, smoothed {meta.get('smoothed', '?')}, covariance "
-                 f"{meta.get('covariance', '?')}; options: " + "; ".join(f"{k} = {v}" for k, v in sorted(eo.items()))])
+                 f"{meta.get('covariance', '?')}; options: "
+                 + "; ".join(f"{k} = {v}" for k, v in sorted(eo.items()) if v is not None)])
     return rows
 
 
@@ -309,6 +311,8 @@ def _coordinate_table(states, scan, summary: dict) -> str:
     for i, n in enumerate(names):
         u, f = _display_unit(units[i])
         lo, hi = np.nanmin(scan.q.lo[:, i]) * f, np.nanmax(scan.q.hi[:, i]) * f
+        # the RMS about the mean is at most half the range (a constant, a static model's: 0, not the sums' rounding)
+        std[i] = min(std[i], 0.5 * (hi - lo) / f) if np.isfinite(hi - lo) else std[i]
         row = [n, u, f"{mean[i] * f:.4g}", f"{std[i] * f:.4g}", f"{lo:.4g}", f"{hi:.4g}", _fmt(sig[i] * f, ".3g")]
         if err is not None:
             row.append(_fmt(err[i] * f, ".3g"))

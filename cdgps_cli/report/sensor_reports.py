@@ -765,10 +765,9 @@ def spectrum_report(states, run, opt, out_dir: str | Path, date: str | None = No
     """The dynamic sensor test (Sec. VI.B): PSD figure and identified modes vs the model.
 
     ``date`` is the report's date (``--date``; see :mod:`cdgps_cli.io.provenance` for the default)."""
-    opts = {"--gyro": None if run is None else run.path, "--coords": opt.coords, "--segment-s": opt.segment_s,
-            "--overlap": opt.overlap, "--pad": opt.pad, "--date": date,
-            **{k: v for k, v in opt.echo().items() if k not in ("coords", "segment_s", "overlap", "pad")}}
+    opts = {"--gyro": None if run is None else run.path, **opt.command_line(), "--date": date}
     prov = report_provenance("cdgps report spectrum", opts, states, run, date)     # checks --date first
+    prov["settings"] = opt.settings()
     with output_set(out_dir, replaces=SPECTRUM_REPORT_FILES) as dest:      # one set: spectra and report
         s = run_spectra(states, run, opt, out_dir, dest=dest, chunk_epochs=chunk_epochs)
         pngs = s["pngs"]

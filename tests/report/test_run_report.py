@@ -380,3 +380,39 @@ def test_a_nis_outside_its_bound_says_which_way():
     below = _nis_side_text(0.031, 0.944)
     assert "conservative" in below and "5.7× less" in below
     assert "too small" in _nis_side_text(3.0, 0.944)
+
+
+def test_the_command_row_can_be_typed_again(page):
+    """The provenance's command named ``--band-pct``, ``--seen-pct``, ``--min-mac`` and ``--fmax-hz``, which no
+    command takes (a sweep ran it: "No such option"): every option it names is one of ``report run``'s, and the
+    fixed settings are listed apart."""
+    import shlex
+
+    from cdgps_cli.io.provenance import command_line
+
+    prov = page[2]["provenance"]
+    words = shlex.split(command_line(prov))
+    cmd = main.commands["report"].commands["run"]
+    known = {o for p in cmd.params for o in p.opts}
+    assert words[:3] == ["cdgps", "report", "run"]
+    assert {w for w in words if w.startswith("--")} <= known
+    assert set(prov["settings"]) == {"band_pct", "seen_pct", "min_mac", "fmax_hz"}
+    assert "settings" in page[1] and "--band-pct" not in page[1]
+
+
+def test_a_static_gnss_page_shows_no_none_and_no_rounding_noise(tmp_path):
+    """A static GNSS estimate's page said "age_sigma_m_per_s = None", "random_walk_sigma_m_per_sqrt_s = None" and an
+    RMS about the mean of "8.232e-08" mm for a constant coordinate: options not set are left out, and the RMS about
+    the mean is at most half the range (0 for a constant)."""
+    sim, gdir = tmp_path / "sim", tmp_path / "g"
+    for args in (["simulate-gnss", "--duration", "60", "--seed", "3", "-o", sim],
+                 ["ingest", "--config", sim / "config.toml", "-o", sim / "run.mcap"],
+                 ["init", sim / "run.mcap", "-o", sim / "init.json"],
+                 ["estimate", sim / "run.mcap", "--init", sim / "init.json", "-o", sim / "states.mcap"],
+                 ["report", "run", sim / "states.mcap", "-o", gdir, "--date", DATE]):
+        r = CliRunner().invoke(main, ["-q", *map(str, args)])
+        assert r.exit_code == 0, (args, r.output)
+    text = (gdir / "index.html").read_text()
+    assert "= None" not in text and "None;" not in text
+    coords = json.loads((gdir / "report.json").read_text())["summary"]["coordinates"]
+    assert all(c["rms_about_mean"] == 0.0 for c in coords.values())       # the static model: one value
