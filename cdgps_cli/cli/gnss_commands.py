@@ -408,7 +408,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    "does is fixed and the epoch stays float [0.999].")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix).")
+              help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix; .kml, .kmz, .gpx are refused: pos2kml makes KML from a .pos).")
 @click.option("--pos-frame", "pos_frame", type=click.Choice(["llh", "xyz", "enu"]), default=None,
               help="Coordinates of a .pos output (RTKLIB out-solformat): llh latitude/longitude/height, xyz ECEF, "
                    "enu the baseline's east/north/up at the base [llh].")

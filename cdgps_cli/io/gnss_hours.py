@@ -121,7 +121,7 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
     say = progress or (lambda m: None)
     why = [] if why is None else why
     try:
-        files, pieces = g._ingest_files(cfg, rinex, ubx)
+        files, pieces, shared = g._ingest_files(cfg, rinex, ubx)
         master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
         if not master or master not in files:
             why.append("no master")
@@ -143,7 +143,7 @@ def hourly_inputs(cfg: GnssConfig, out_path, *, rinex: dict | None = None, ubx: 
         if len(cut) > 1:          # the files in time order, as the whole-file ingest puts them before writing
             pieces[n] = [given[n][h.order] for h in cut]
             files[n] = (files[n][0], g.pieces_text(pieces[n]))
-    warnings: list[str] = []
+    warnings: list[str] = list(shared)
     try:
         nav_ahead, glonass_k = g._glonass_nav(cfg.signals, nav_list)
         ahead = {} if nav_list else _sfrbx_ahead(hours.hours, files, say)

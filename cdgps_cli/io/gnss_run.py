@@ -56,7 +56,7 @@ from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
-from cdgps_cli.io.log_sequence import expand_paths
+from cdgps_cli.io.log_sequence import expand_paths, one_file_for_two_receivers
 from cdgps_cli.io.rinex import end_padded_text, read_rinex_nav, read_rinex_obs
 from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
@@ -646,7 +646,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     writes the run with :func:`write_gnss_run`.
     """
     say = progress or (lambda m: None)
-    files, pieces = _ingest_files(cfg, rinex, ubx)
+    files, pieces, shared = _ingest_files(cfg, rinex, ubx)
     master = master or cfg.master or (next(iter(files)) if len(files) == 1 else None)
     if not master:
         raise CdgpsError(f"--master is required: which of {', '.join(files)} is the reference receiver at a known position")
@@ -655,7 +655,7 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     nav_list = expand_paths(list(cfg.nav), f"{cfg.path}: [gnss] nav") if nav_paths is None else \
         expand_paths([str(p) for p in nav_paths], "--nav")
     _refuse_overwriting_an_input(Path(out_path), pieces, nav_list)
-    warnings: list[str] = []
+    warnings: list[str] = list(shared)
     receivers, joins = _read_receivers(cfg, files, pieces, say, strict, warnings)
     # master first, then the others in the given order
     receivers = {master: receivers[master], **{n: r for n, r in receivers.items() if n != master}}
@@ -671,9 +671,9 @@ def read_ingest_inputs(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | N
     return IngestInputs(files, master, nav_list, receivers, nav, integrity, warnings, nav_source, pieces, joins)
 
 
-def _ingest_files(cfg: GnssConfig, rinex: dict | None, ubx: dict | None) -> tuple[dict, dict]:
+def _ingest_files(cfg: GnssConfig, rinex: dict | None, ubx: dict | None) -> tuple[dict, dict, list]:
     """The receivers' files of an ingest: (antenna → (kind, file or the text of its pieces), antenna → the files
-    its patterns expand to), from --rinex/--ubx or else the config's [gnss.antennas.NAME] tables; CdgpsError for an
+    its patterns expand to, the warning of a file given to two antennas), from --rinex/--ubx or else the config's [gnss.antennas.NAME] tables; CdgpsError for an
     antenna given twice, one without a file, or none at all."""
     files: dict = {}
     if rinex or ubx:
@@ -694,11 +694,12 @@ def _ingest_files(cfg: GnssConfig, rinex: dict | None, ubx: dict | None) -> tupl
         opt = f"{cfg.path}: [gnss.antennas.{{1}}] {{0}}"
     pieces = {n: expand_paths([p] if isinstance(p, (str, Path)) else list(p), opt.format(k, n))
               for n, (k, p) in files.items()}
+    shared = one_file_for_two_receivers({opt.format(k, n): pieces[n] for n, (k, _) in files.items()})
     files = {n: (k, pieces[n][0] if len(pieces[n]) == 1 else pieces_text(pieces[n])) for n, (k, _) in files.items()}
     if not files:
         raise CdgpsError("no receiver files: give --rinex NAME=FILE / --ubx NAME=FILE, or list them in the config's "
                          "[gnss.antennas.NAME] tables")
-    return files, pieces
+    return files, pieces, shared
 
 
 def _refuse_overwriting_an_input(out_path: Path, pieces: dict, nav_list: list) -> None:
@@ -1676,6 +1677,9 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
     both = set(rinex) & set(ubx)
     if both:
         raise CdgpsError(f"antenna(s) {', '.join(sorted(both))} given both as --rinex and --ubx")
+    if warnings is not None:
+        warnings += one_file_for_two_receivers({f"--{k} {n}": expand_paths([str(p)], f"--{k} {n}")
+                                                for k, d in (("rinex", rinex), ("ubx", ubx)) for n, p in d.items()})
 
     def rel(p):
         return path_for_config(p, relative_to)

@@ -28,7 +28,7 @@ import pandas as pd
 
 from cdgps_cli.core.errors import CdgpsError
 
-__all__ = ["expand_paths", "is_pattern", "JoinReport", "join_tables"]
+__all__ = ["expand_paths", "is_pattern", "JoinReport", "join_tables", "one_file_for_two_receivers"]
 
 _GLOB_CHARS = ("*", "?", "[")
 
@@ -96,6 +96,32 @@ class JoinReport:
 
     def as_dict(self) -> dict:
         return {"files": self.files, "gaps": self.gaps, "overlaps": self.overlaps}
+
+
+def one_file_for_two_receivers(files: dict) -> list[str]:
+    """The warning (a list of one, or empty) naming a file given to two receivers (``files``: the receiver's name as
+    the command line or config calls it → its files, :func:`expand_paths`'s): every double difference of the same
+    log against itself is zero, and the solution a baseline of zero length that checks the processing, not the
+    receivers (a zero baseline of two receivers on one antenna: each writes its own log).  The same file under two
+    names (a link) counts."""
+    seen: list = []
+    for who, paths in files.items():
+        for path in paths:
+            for other, q in seen:
+                if other != who and _same_file(path, q):
+                    also = "" if str(path) == str(q) else f" (the file {q} under another name)"
+                    return [f"{path}{also}: given for two receivers ({other} and {who}): every double difference is "
+                            f"zero, and the solution a zero baseline that checks the processing, not the receivers "
+                            f"(two receivers on one antenna write a log each)"]
+            seen.append((who, path))
+    return []
+
+
+def _same_file(a, b) -> bool:
+    try:
+        return Path(a).samefile(b)
+    except OSError:
+        return False
 
 
 def _first_epoch(tab: pd.DataFrame, time_col: str) -> float:

@@ -21,7 +21,7 @@ from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.io.gnss_run import antennas_info, merge_nav
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
-from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables
+from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import read_rinex_obs
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_antenna_model
@@ -92,8 +92,9 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     refuse_missing_files(rinex, nav_paths, origins)
     rinex = {k: expand_paths([v] if isinstance(v, (str, Path)) else list(v), (origins or {}).get("rinex", {}).get(k, f"--rinex {k}"))
              for k, v in rinex.items()}
+    shared = one_file_for_two_receivers({f"--rinex {k}": v for k, v in rinex.items()})
     rinex = {k: v[0] if len(v) == 1 else v for k, v in rinex.items()}     # one file: its name, as before
-    joins: list = []
+    joins: list = list(shared)
     stations, nav = load_stations(rinex, nav_paths, joins)
     shown = {k: v if isinstance(v, (str, Path)) else pieces_text(v) for k, v in rinex.items()}
     rover = next(n for n in rinex if n != master)

@@ -32,7 +32,7 @@ from cdgps_cli.measurement.code_steps import code_steps_warning
 from cdgps_cli.measurement.slips import unflagged_slip_text, without_unlocked_channels
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
-from cdgps_cli.io.log_sequence import expand_paths, join_tables
+from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav
 from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, glonass_without_frequency_text, out_of_order_text,
                                         read_rinex_signals,
@@ -158,6 +158,19 @@ def _nav(paths, systems) -> pd.DataFrame:
     return nav
 
 
+#: solution formats RTKLIB's tools write that rtk does not (an output named so would silently be CSV)
+NOT_WRITTEN_FORMATS = {".kml": "KML (RTKLIB's pos2kml makes it from a .pos)", ".kmz": "KMZ", ".gpx": "GPX",
+                       ".sbp": "SBF/SBP", ".stat": "RTKLIB's solution status"}
+
+
+def _refuse_a_format_not_written(out_path) -> None:
+    """An output whose suffix names a solution format rtk does not write is refused (it would be CSV)."""
+    fmt = NOT_WRITTEN_FORMATS.get(Path(str(out_path)).suffix.lower())
+    if fmt is not None:
+        raise CdgpsError(f"{out_path}: rtk does not write {fmt}; name the output .pos, .nmea, .gga, .geojson or .csv "
+                         f"(any other suffix: CSV)")
+
+
 def _refuse_empty(path, who: str) -> None:
     """An empty receiver file is named as such: from its bytes neither reader can tell which it should be."""
     p = Path(path)
@@ -175,6 +188,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     if opt["pos_frame"] != MULTI_GNSS_DEFAULTS["pos_frame"] and Path(str(out_csv)).suffix.lower() != ".pos":
         raise CdgpsError(f"{out_csv}: pos_frame {opt['pos_frame']!r} (--pos-frame) is the coordinates of a .pos output; "
                          f"this output is not one (its suffix is not .pos)")
+    _refuse_a_format_not_written(out_csv)
     base_files, rover_files = (expand_paths(_as_list(p), f"--{who}") for p, who in ((base_path, "base"), (rover_path, "rover")))
     # a navigation file named twice, or matched by two patterns, is read once (its ephemerides are merged anyway)
     nav_paths = expand_paths(list(nav_paths or ()), "--nav", repeats="once")
@@ -182,7 +196,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         for path in files:
             _refuse_empty(path, who)
     base_path, rover_path = pieces_text(base_files), pieces_text(rover_files)
-    warnings = []
+    warnings = one_file_for_two_receivers({"--base": base_files, "--rover": rover_files})
     auto = opt["signals"] == "auto"
     sigs = _auto_signals(base_files, rover_files, nav_paths, warnings) if auto else list(opt["signals"])
     opt["signals"] = tuple(sigs)

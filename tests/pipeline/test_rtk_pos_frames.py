@@ -93,3 +93,11 @@ def test_rtk_json_says_what_was_written_and_how(tmp_path):
     s = _json.loads(r.stdout)
     assert s["output"] == str(out) and s["mode"] == "static" and s["pos_frame"] == "enu" and s["direction"] == "forward"
     assert len(s["base_xyz_m"]) == 3 and 6.3e6 < float(np.linalg.norm(s["base_xyz_m"])) < 6.4e6
+
+
+@pytest.mark.parametrize("suffix", [".kml", ".KMZ", ".gpx"])
+def test_an_output_in_a_format_rtk_does_not_write_is_refused(tmp_path, suffix):
+    """``-o x.kml`` wrote CSV into a file named .kml: refused before any file is read."""
+    out = tmp_path / f"x{suffix}"
+    r = run_cli("-q", "rtk", "--base", "b.obs", "--rover", "r.obs", "-o", out)
+    assert r.exit_code == 2 and f"x{suffix}: rtk does not write" in r.output and not out.exists()
