@@ -102,6 +102,10 @@ GNSS_WEIGHTINGS = ("elevation", "equal")
 #: full windows for an estimate (fewer: the model's variance, factor 1), and the smallest factor applied
 CODE_NOISE_WINDOW_S, CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_WINDOWS, CODE_NOISE_MIN_FACTOR = 30.0, 300.0, 10, 1.5
 
+#: phase_noise "auto" (pipeline/gnss.phase_variance_factor): the fewest degrees of freedom of the single-epoch
+#: solutions' DD phase residuals a factor is estimated from (fewer: the model's variances, factor 1)
+PHASE_NOISE_MIN_DOF = 100
+
 GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "weighting": "elevation",
                  "troposphere": True, "sigma_a_m": PHASE_SIGMA_A_M, "sigma_b_m": PHASE_SIGMA_B_M,
                  "code_ratio": 100.0, "sync_tol_s": EPOCH_PAIRING_DEFAULTS["sync_tol_s"],
@@ -111,6 +115,9 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  # [gnss.displacement] model = "constant_velocity": each E/N/U velocity a random walk of this
                  # density (white acceleration, m/s/√s); a structure's few-mm motion, not a vehicle's (rtk: 3.0)
                  "accel_sigma_m_per_s_per_sqrt_s": 0.1,
+                 # estimate's per-epoch states: the phase variances as modelled ("model"), or scaled by the unit
+                 # variance of the single-epoch solutions' DD phase residuals ("auto")
+                 "phase_noise": "model",
                  "iono_threshold_km": IONO_THRESHOLD_KM,
                  # an integer set (or partial subset) is fixed only if its bootstrapped success rate reaches this,
                  # besides the ratio test (partial ambiguity resolution with a success-rate criterion)

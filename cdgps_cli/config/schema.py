@@ -463,6 +463,11 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
         "accel_sigma_m_per_s_per_sqrt_s": _key(_POS, "constant_velocity: white-acceleration density of each E/N/U "
                                                      "velocity, m/s/√s", default=GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"],
                                                sign="positive"),
+        "phase_noise": _key({"type": "string", "enum": ["model", "auto"]},
+                            "estimate's per-epoch states: the phase variances as modelled (sigma_a_m, sigma_b_m), or "
+                            "\"auto\": scaled by the unit variance of the single-epoch solutions' DD phase residuals "
+                            "(honest σ where the model is far from the receivers' noise)",
+                            default=GNSS_DEFAULTS["phase_noise"]),
     },
 }
 

@@ -838,6 +838,9 @@ class GnssConfig:
     random_walk_sigma: tuple = GNSS_DEFAULTS["random_walk_sigma"]
     initial_sigma_m: float = GNSS_DEFAULTS["initial_sigma_m"]
     accel_sigma_m_per_s_per_sqrt_s: float = GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"]
+    phase_noise: str = GNSS_DEFAULTS["phase_noise"]
+    """``estimate``'s per-epoch phase variances: ``"model"`` (sigma_a_m, sigma_b_m) or ``"auto"`` (scaled by the
+    single-epoch solutions' residual unit variance, :func:`cdgps_cli.pipeline.gnss.phase_variance_factor`)."""
     iono_threshold_km: float = GNSS_DEFAULTS["iono_threshold_km"]
     """With ``signals``: ``cdgps init`` refuses a baseline at least this long, km (the displacement path
     neglects the DD ionosphere; ``cdgps rtk`` estimates it)."""
@@ -920,7 +923,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         p.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
     if v["max_age_s"] < v["sync_tol_s"]:
         p.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({v['sync_tol_s']:g} s), got {v['max_age_s']!r}")
-    model, rw, init_sigma, accel = _gnss_displacement(p, g.get("displacement", {}), ctx)
+    model, rw, init_sigma, accel, phase_noise = _gnss_displacement(p, g.get("displacement", {}), ctx)
     ants = _gnss_antennas(p, g.get("antennas", {}), ctx, resolve)
     for a in ants:
         if a.antenna_type is not None and a.antenna_type.strip().lower() != "none" and not v["antex"]:
@@ -939,15 +942,16 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         sigma_a_m=v["sigma_a_m"], sigma_b_m=v["sigma_b_m"], code_ratio=v["code_ratio"], troposphere=v["troposphere"],
         max_gap_s=v["max_gap_s"], sync_tol_s=v["sync_tol_s"], max_age_s=v["max_age_s"],
         code_correlation_s=v["code_correlation_s"], epoch_alignment=v["epoch_alignment"], displacement=model,
-        random_walk_sigma=rw, initial_sigma_m=init_sigma, accel_sigma_m_per_s_per_sqrt_s=accel,
+        random_walk_sigma=rw, initial_sigma_m=init_sigma, accel_sigma_m_per_s_per_sqrt_s=accel, phase_noise=phase_noise,
         min_success_rate=v["min_success_rate"], signals=signals,
         glonass_fix=v["glonass_fix"],
         iono_threshold_km=v["iono_threshold_km"], antex=resolve(v["antex"]) if v["antex"] else None,
     )
 
 
-def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, float, float]:
-    """(model, random-walk σ (E, N, U) m/√s, initial σ m, white-acceleration σ m/s/√s) of ``[gnss.displacement]``."""
+def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, float, float, str]:
+    """(model, random-walk σ (E, N, U) m/√s, initial σ m, white-acceleration σ m/s/√s, phase noise) of
+    ``[gnss.displacement]``."""
     if not isinstance(disp, dict):
         p.add("gnss.displacement", "expected a table ([gnss.displacement])")
         disp = {}
@@ -967,7 +971,7 @@ def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, flo
                                                           "displacement has no process noise)")
     if "accel_sigma_m_per_s_per_sqrt_s" in disp and disp.get("model", "static") != "constant_velocity":
         p.add("gnss.displacement.accel_sigma_m_per_s_per_sqrt_s", "only used with model = \"constant_velocity\"")
-    return v["model"], rw, v["initial_sigma_m"], v["accel_sigma_m_per_s_per_sqrt_s"]
+    return v["model"], rw, v["initial_sigma_m"], v["accel_sigma_m_per_s_per_sqrt_s"], v["phase_noise"]
 
 
 def _gnss_antennas(p: Problems, at, ctx: Context, resolve) -> list:
@@ -1085,6 +1089,9 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
                else float(accel_sigma_m_per_s_per_sqrt_s))
         out.append(f"accel_sigma_m_per_s_per_sqrt_s = {acc!r}    "
                    f"# white acceleration of each velocity, m/s/sqrt(s)")
+    if displacement != "static":
+        out.append('# phase_noise = "auto"    # the per-epoch states\' phase variances scaled to the single-epoch '
+                   'residuals (default "model": sigma_a_m, sigma_b_m)')
     for an, (kind, path) in antennas.items():
         out += ["", f"[gnss.antennas.{_toml_str(an)}]"]
         if path is not None:

@@ -1552,9 +1552,13 @@ def known_phase_blocks(d: _Data, var_ph, refs_ph: list, blocks_ph: list, usable)
 def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: BaselineOptions):
     """Every epoch solved alone from its phase DDs (all signal groups) with the known ambiguities →
     (epoch, ENU m, n_sat, PDOP, covariance m²) by epoch, or None when no epoch has enough satellites.
-    ``n_sat`` counts satellite-signal rows; an epoch needs ``min_sats_kinematic`` − 1 DDs."""
+    ``n_sat`` counts satellite-signal rows; an epoch needs ``min_sats_kinematic`` − 1 DDs.  Also each solution's
+    weighted residual square sum ``sse`` (eᵀPe of its DD phases after the fit, the weights of ``w``) and its degrees
+    of freedom ``dof`` (DDs − 3): their ratio over the epochs is the phase variances' scale the data show
+    (:func:`cdgps_cli.pipeline.gnss.phase_variance_factor`)."""
     n_ep = d.t_label.size
     nmat, rhs, gcg = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3)), np.zeros((n_ep, 3, 3))
+    rpr = np.zeros(n_ep)
     n_sat, n_dd = np.zeros(n_ep, dtype=np.int64), np.zeros(n_ep, dtype=np.int64)
     blocks, _ = known_phase_blocks(d, w.var_ph, w.refs_ph, w.blocks_ph, fin.known_seg[seg])
     for rows, p in blocks:
@@ -1564,6 +1568,7 @@ def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: Baseli
         pg = p @ gk
         nmat[ep] += gt @ pg
         rhs[ep] += (np.swapaxes(pg, 1, 2) @ rk[:, :, None])[:, :, 0]
+        rpr[ep] += np.einsum("ki,kij,kj->k", rk, p, rk)
         gc = gk - gk.mean(axis=1, keepdims=True)       # geometry with the clock (group bias) eliminated
         gcg[ep] += np.swapaxes(gc, 1, 2) @ gc
         n_sat[ep] += rows.shape[1]
@@ -1575,7 +1580,9 @@ def _single_epoch_positions(d: _Data, w: _Weights, fin: _Final, seg, opt: Baseli
     ck = np.linalg.inv(nmat[ep])
     dk = np.einsum("kcd,kd->kc", ck, rhs[ep])
     pdop = np.sqrt(np.trace(np.linalg.inv(gcg[ep]), axis1=1, axis2=2))
-    return {"epoch": ep, "enu_m": fin.x + dk, "n_sat": n_sat[ep], "pdop": pdop, "cov_m2": ck}
+    sse = rpr[ep] - np.einsum("kc,kc->k", dk, rhs[ep])          # rᵀPr − δᵀNδ: the fit's residual square sum
+    return {"epoch": ep, "enu_m": fin.x + dk, "n_sat": n_sat[ep], "pdop": pdop, "cov_m2": ck,
+            "sse": np.maximum(sse, 0.0), "dof": n_dd[ep] - 3}
 
 
 def _kinematic_summary(d: _Data, ka: dict, x_final, opt: BaselineOptions) -> dict:

@@ -625,9 +625,13 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     model = run.cfg.displacement
     per = {}
     events: list[dict] = []
+    noise = {}
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: fixed solution with INIT's integers, {model} states …")
         res, w, rov, _ = solve_with_init_integers(run, init, r, stations)
+        if run.cfg.phase_noise == "auto":
+            noise[r] = phase_variance_factor(w.get("kinematic"))
+            _scale_phase_variances(w, noise[r]["factor"])
         per[r] = (res, w, rov)
         events.extend(_events(r, run.master, res, w))
     # common time axis: every matched epoch of any rover
@@ -645,7 +649,8 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
         a.kinematic(w["kinematic"], idx, sl, j)
         n_fix = n_fixed_with_glonass(res["ambiguities"])
         summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size), n_fixed_with_glonass=n_fix,
-                                 epochs_without_fixed_dd=n_blind if n_fix else int(idx.size))
+                                 epochs_without_fixed_dd=n_blind if n_fix else int(idx.size),
+                                 **({"phase_noise": noise[r]} if r in noise else {}))
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
@@ -655,7 +660,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     out = _write_gnss_states(run, init, init_text, out_path, names, t_all, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
                              a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
                              events, smooth and model != "static", meta_extra)
-    notes = []
+    notes = [_phase_noise_note(r, v) for r, v in noise.items()]
     if model == "random_walk":
         for j, r in enumerate(run.rovers):
             band = random_walk_passband_hz(run.cfg.random_walk_sigma, a.kP[:, 3 * j:3 * j + 3, 3 * j:3 * j + 3],
@@ -668,6 +673,51 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
                                                                                       model)
                 + ([STATIC_SMOOTH_NOTE] if smooth and model == "static" else [])})
     return out
+
+
+def phase_variance_factor(kinematic: dict | None) -> dict:
+    """``phase_noise = "auto"``: the scale of the phase variances the data show, f = Σ eᵀPe / Σ (m − 3) over every
+    single-epoch solution (``kinematic``: :func:`~cdgps_cli.estimation.baseline._single_epoch_positions`' ``sse``
+    and ``dof``; e its m DD phase residuals after the epoch's own fit, P their weights under the model): the unit
+    variance of an epoch-by-epoch least squares, which a moving rover does not inflate (each epoch has its own
+    position), unlike the residuals of the static solution.  Fewer than :data:`PHASE_NOISE_MIN_DOF` degrees of
+    freedom (or no single-epoch solution): 1, the model's.
+
+    Returns ``{"mode": "auto", "factor", "dof", "sigma_scale"}`` (σ_scale = √f)."""
+    from cdgps_cli.config.options import PHASE_NOISE_MIN_DOF  # noqa: PLC0415
+
+    sse = np.asarray((kinematic or {}).get("sse", []), dtype=np.float64)
+    dof = np.asarray((kinematic or {}).get("dof", []), dtype=np.int64)
+    n = int(dof.sum())
+    f = float(sse.sum() / n) if n >= PHASE_NOISE_MIN_DOF and np.isfinite(sse).all() else 1.0
+    f = f if f > 0 else 1.0
+    return {"mode": "auto", "factor": f, "dof": n, "sigma_scale": float(np.sqrt(f)),
+            **({} if n >= PHASE_NOISE_MIN_DOF else {"not_estimated": f"{n} degrees of freedom, fewer than "
+                                                                     f"{PHASE_NOISE_MIN_DOF}: the model's variances"})}
+
+
+def _scale_phase_variances(w: dict, f: float) -> None:
+    """The estimators' phase variances of one rover's work (``w``) times ``f``: the SD variances, the DD weight
+    blocks (÷ f) and the single-epoch solutions' covariances (× f; their positions do not move).  The static
+    solution's covariance stays INIT's (a record's mean is limited by errors correlated over minutes, which the
+    epoch-to-epoch scatter does not measure)."""
+    if f == 1.0:
+        return
+    w["var_ph"] = w["var_ph"] * f
+    if w.get("blocks_ph") is not None:
+        w["blocks_ph"] = [(rows, p / f) for rows, p in w["blocks_ph"]]
+    ka = w.get("kinematic")
+    if ka is not None:
+        ka["cov_m2"] = ka["cov_m2"] * f
+
+
+def _phase_noise_note(rover: str, v: dict) -> str:
+    """What ``phase_noise = "auto"`` found for a rover, said."""
+    if "not_estimated" in v:
+        return f"{rover}: phase_noise auto: {v['not_estimated']}"
+    return (f"{rover}: phase_noise auto: the single-epoch solutions' DD phase residuals ({v['dof']} degrees of freedom) "
+            f"scatter {v['sigma_scale']:.3g} × the model's σ (variance factor {v['factor']:.3g}); the per-epoch states, "
+            f"their σ and NIS use the scaled variances (the static solution's σ is INIT's)")
 
 
 def random_walk_passband_hz(sigma_rw, kin_cov_m2: np.ndarray, time_s: np.ndarray, smoothed: bool):

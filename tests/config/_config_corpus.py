@@ -138,6 +138,7 @@ iono_threshold_km = 12.0
 model = "random_walk"
 sigma_m_per_sqrt_s = [0.001, 0.002, 0.003]
 initial_sigma_m = 0.5
+phase_noise = "auto"
 
 [gnss.antennas.base]
 rinex = "base.obs"
