@@ -340,7 +340,8 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="kinematic: random-walk rover position, a solution per epoch; constant-velocity: position and "
                    "velocity, the velocity a random walk (white acceleration), written out too (ENU m/s and σ; "
                    "RTKLIB's velocity columns in .pos); static: one position for the span, its estimate from "
-                   "the data so far written at every epoch (the last line uses them all, as RTKLIB's static mode).")
+                   "the data so far written at every epoch (forward: the last line uses them all, as RTKLIB's static "
+                   "mode; see --direction).")
 @click.option("--base-xyz", nargs=3, type=float, default=None,
               help="Base antenna ECEF position, m (default: its header's APPROX POSITION XYZ plus its ANTENNA: DELTA "
                    "H/E/N, as RTKLIB's base from its header; a rover's delta is not applied).")
@@ -408,7 +409,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    "does is fixed and the epoch stays float [0.999].")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix; .kml, .kmz, .gpx are refused: pos2kml makes KML from a .pos).")
+              help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix; .kml, .kmz, .gpx, .sbp, .stat are refused: pos2kml makes KML from a .pos).")
 @click.option("--pos-frame", "pos_frame", type=click.Choice(["llh", "xyz", "enu"]), default=None,
               help="Coordinates of a .pos output (RTKLIB out-solformat): llh latitude/longitude/height, xyz ECEF, "
                    "enu the baseline's east/north/up at the base [llh].")

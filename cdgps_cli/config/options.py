@@ -147,10 +147,16 @@ def toml_value(v) -> str:
     return repr(float(v)) if isinstance(v, float) else str(v)
 
 #: multi-GNSS dual-frequency RTK (estimation/rtk_multi.py, docs/gnss-pipeline.md "Multi-GNSS")
+def default_direction(mode: str) -> str:
+    """rtk's passes when none is given: static mode one forward pass (RTKLIB's static default, its last epoch uses
+    them all), the other modes forward and backward combined."""
+    return "forward" if mode == "static" else "combined"
+
+
 MULTI_GNSS_DEFAULTS = {
     "signals": "auto",                     # every signal both files hold whose system has ephemerides, or a tuple of names
     "mode": "kinematic",                   # "kinematic" (random-walk position), "constant-velocity" or "static"
-    "direction": "combined",               # kinematic: "forward", "backward" or "combined" (both, checked against each other)
+    "direction": None,                     # "forward", "backward" or "combined" (both, checked against each other); None: the mode's (default_direction)
     "kinematic_sigma_m_per_sqrt_s": 30.0,  # random-walk rate of the kinematic rover position
     "accel_sigma_m_per_s_per_sqrt_s": 3.0,  # constant-velocity mode: velocity random walk (white acceleration; RTKLIB's stats-prnaccelh)
     "mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "fix": True, "glonass_fix": GNSS_DEFAULTS["glonass_fix"],

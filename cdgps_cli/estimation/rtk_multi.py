@@ -29,7 +29,7 @@ from bisect import bisect_left
 import numpy as np
 import pandas as pd
 
-from cdgps_cli.config.options import (CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_FACTOR, CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S,
+from cdgps_cli.config.options import (default_direction, CODE_NOISE_CHUNK_S, CODE_NOISE_MIN_FACTOR, CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S,
                                      MULTI_GNSS_DEFAULTS)
 from cdgps_cli.core import beside
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
@@ -625,7 +625,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
     if not rows["groups"]["start"].size:                     # no epoch has a group of two satellites
         raise CdgpsError(f"no double differences: no epoch of the {n_ep} paired has two satellites of one signal "
                          f"observed at both receivers above the {opt['mask_deg']:g}° mask")
-    direction = "forward" if opt["mode"] == "static" and "direction" not in (options or {}) else opt["direction"]
+    direction = opt["direction"] or default_direction(opt["mode"])
     res = _epochs_with_dd(_passes(rows, times, direction, opt, base_xyz, origin, iono, progress))
     times, age_s, summary = times[res["with_dd"]], pairs.age_s[res["with_dd"]], without_dd(pairs.summary, res["without_dd"])
     ok = res["fixed"]
@@ -638,6 +638,7 @@ def solve_rtk(base: pd.DataFrame, rover: pd.DataFrame, base_xyz_m, rover_xyz0_m,
             "base_age_s": age_s,
             "float_cov_m2": res["float_cov"], "fixed_cov_m2": np.where(ok[:, None, None], res["fixed_cov"], np.nan),
             "n_satellites": res["ns"], "direction": direction, "fixes_rejected": int(res.get("rejected", 0)),
+            "static_every_line_all_epochs": res.get("every_line_all_epochs"),
             "partial_fixes": int(res["partial"].sum()), "wrong_fix_resets": int(res["wrong_fix_resets"].sum()),
             "code_noise": code_noise, "age_noise": age_noise,
             "code_clock_steps": {"time_gps_s": times[code_steps["epoch"]].tolist(), "step_m": code_steps["step_m"].tolist(),
@@ -697,8 +698,9 @@ def _solution_at(res: dict, k: int) -> np.ndarray:
 
 
 def _all_epochs_solution(res: dict, direction: str) -> np.ndarray:
-    """Static mode's solution from every epoch (ECEF m (3,)): the forward pass's last epoch (forward; combined, every
-    epoch's, :func:`_static_smoothed`), the backward pass's first (backward)."""
+    """Static mode's solution from every epoch (ECEF m (3,)): the forward pass's last epoch (forward), the backward
+    pass's first (backward), every epoch's (combined, :func:`_static_smoothed`; where the passes' solutions from every
+    epoch disagreed, the last epoch's combination)."""
     return _solution_at(res, 0 if direction == "backward" else -1)
 
 
@@ -790,24 +792,29 @@ _POSITION_KEYS = ("float_xyz", "fixed_xyz", "float_cov", "fixed_cov")
 def _static_smoothed(f: dict, b: dict) -> dict:
     """Static mode's passes combined: the smoother of a constant position, which at every epoch is the solution
     from every epoch.  Both passes hold one: the forward pass at its last epoch with a DD, the backward pass at its
-    first; these two are combined as :func:`_combine` combines an epoch (fixed where both are fixed and agree, or one
-    fixed agrees with the other's float; two fixes that disagree: float, every epoch counted rejected) and given to
-    every epoch.  The other per-epoch columns (satellites, ratio, integers fixed) are :func:`_combine`'s.
+    first.  Combined as :func:`_combine` combines an epoch, they are given to every epoch when that combination is
+    fixed (both fixed and agreeing, or one fixed agreeing with the other's float); otherwise (the two disagree, or
+    neither is fixed) each epoch is :func:`_combine`'s own combination of the two passes, as for a moving rover, and
+    ``rejected`` counts its epochs.  The other per-epoch columns (satellites, ratio, integers fixed) are
+    :func:`_combine`'s.
 
-    (Combining each epoch's two partial solutions instead, as for a moving rover, fixed at most the epochs where the
-    two partial static solutions agreed within their formal σ: on a real F9P pair 648 of 829 epochs, where two
-    static solutions from hours of data differ by 2.5 cm in height, and on the real car's last 48 s seven epochs
-    float 37 cm off, while RTKLIB's combined static run fixed 828 and 48.)"""
-    out = _combine(f, b)
+    (Combining each epoch's two partial solutions always, as for a moving rover, fixed at most the epochs where the
+    two partial static solutions agreed within their formal σ: on a real F9P pair 648 of 829 epochs, where two static
+    solutions from hours of data differ by 2.5 cm in height, while RTKLIB's combined static run fixed 828.  Going
+    float at every epoch when the two solutions from every epoch disagree (a review: 9.4 mm apart, formal σ 1 mm, on
+    the real car's last 48 s) was worse than either pass: the per-epoch combination fixes 40 of those 48.)"""
+    out = dict(_combine(f, b), every_line_all_epochs=False)
     kf, kb = (np.flatnonzero(p["ns"] > 0) for p in (f, b))
     if not (kf.size and kb.size):
         return out
-    one = _combine(*({k: (v[[i]] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == f["ns"].size else v)
+    n = f["ns"].size
+    one = _combine(*({k: (v[[i]] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n else v)
                       for k, v in p.items()} for p, i in ((f, kf[-1]), (b, kb[0]))))
+    if not one["fixed"][0]:
+        return out
     for key in _POSITION_KEYS:
         out[key][:] = one[key][0]
-    out["fixed"] = np.full(out["fixed"].shape, bool(one["fixed"][0]))
-    out["rejected"] = int(out["fixed"].size) if one["rejected"] else 0
+    out.update(fixed=np.ones(n, dtype=bool), rejected=0, every_line_all_epochs=True)
     return out
 
 

@@ -145,8 +145,9 @@ def command_line(p: dict) -> str:
 
     parts = [p["command"], shlex.quote(p["inputs"][0]["path"])]
     for k, v in p["options"].items():
-        if k.startswith("-") and v is not None:
-            parts += [k, shlex.quote(_opt_text(v))]
+        if not k.startswith("-") or v is None or v is False:
+            continue
+        parts += [k] if v is True else [k, shlex.quote(_opt_text(v))]      # a flag: its name alone
     return " ".join(parts)
 
 

@@ -20,7 +20,7 @@ import pandas as pd
 
 from cdgps_cli.config.limits import GEOCENTRIC_RANGE_M, MASK_DEG
 from cdgps_cli import __version__
-from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, HEADER_CHECK_EPOCHS,
+from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, default_direction, CODE_NOISE_WINDOW_S, GNSS_WEIGHTINGS, HEADER_CHECK_EPOCHS,
                                       HEADER_POSITION_TOL_M, MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS,
                                       ORIGIN_MOVE_SIGMAS, ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
@@ -94,10 +94,10 @@ def validate_options(options: dict) -> dict:
             opt[key] = float(opt[key])
         if opt["tropo_threshold_km"] is not None:
             opt["tropo_threshold_km"] = float(opt["tropo_threshold_km"])
+    if opt["direction"] is None:
+        opt["direction"] = default_direction(opt["mode"])
     if opt["direction"] not in ("forward", "backward", "combined"):
         bad.append(f"direction: expected 'forward', 'backward' or 'combined', got {opt['direction']!r}")
-    elif opt["mode"] == "static" and options.get("direction") is None:
-        opt["direction"] = "forward"                # RTKLIB's static default: one pass, its last epoch uses them all
     if not (np.isfinite(float(opt["code_correlation_s"])) and float(opt["code_correlation_s"]) >= 0):
         bad.append(f"code_correlation_s: expected a number of seconds >= 0, got {opt['code_correlation_s']}")
     if opt["code_noise"] not in ("auto", "model"):
@@ -160,7 +160,7 @@ def _nav(paths, systems) -> pd.DataFrame:
 
 #: solution formats RTKLIB's tools write that rtk does not (an output named so would silently be CSV)
 NOT_WRITTEN_FORMATS = {".kml": "KML (RTKLIB's pos2kml makes it from a .pos)", ".kmz": "KMZ", ".gpx": "GPX",
-                       ".sbp": "SBF/SBP", ".stat": "RTKLIB's solution status"}
+                       ".sbp": "Swift's SBP", ".stat": "RTKLIB's solution status"}
 
 
 def _refuse_a_format_not_written(out_path) -> None:
@@ -433,7 +433,8 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     ratio = np.array([finite_or(r, 0.0) for r in res["ratio"]])
     sig_enu = np.sqrt(np.abs(np.einsum("nii->ni", cov_enu)))
     suffix = Path(str(out_path)).suffix.lower()
-    desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, {_passes_text(opt['mode'], res['direction'])}, "
+    passes = _passes_text(opt["mode"], res["direction"], res.get("static_every_line_all_epochs"))
+    desc = (f"cdgps {__version__} rtk, mode {opt['mode']}, {passes}, "
             f"signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
             f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}"
             + (", zenith wet delays estimated" if res["wet_troposphere"]["model"] == "estimated" else "")
@@ -461,7 +462,7 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     if any(signal(x).fdma_step_hz for x in sigs):
         buf.write(f"# glonass {'fixed (glonass_fix: identical receivers)' if opt['glonass_fix'] else 'float'} "
                   "(FDMA: DD ambiguities are not integer multiples of one wavelength)\n")
-    buf.write(f"# mode {opt['mode']} direction {res['direction']} ionosphere {res['iono_model']} baseline_km {res['baseline_km']:.3f} ratio {opt['ratio']}\n")
+    buf.write(f"# mode {opt['mode']}, {passes}, ionosphere {res['iono_model']} baseline_km {res['baseline_km']:.3f} ratio {opt['ratio']}\n")
     buf.write(csv_text({"time_gps_s": t, "x_m": xyz[:, 0], "y_m": xyz[:, 1], "z_m": xyz[:, 2],
                         "fixed": res["fixed"].astype(int), "n_dd_ambiguities": res["n_dd_ambiguities"],
                         "ratio": res["ratio"], "n_satellites": ns, "age_s": age,
@@ -472,15 +473,17 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
     return buf.getvalue()
 
 
-def _passes_text(mode: str, direction: str) -> str:
+def _passes_text(mode: str, direction: str, every_line: bool | None = None) -> str:
     """The passes a solution comes from, for the files' headers; in static mode, which line holds the solution from
-    every epoch."""
+    every epoch (``every_line``: whether static combined gave it to every line, :func:`_static_smoothed`)."""
     text = {"forward": "forward pass", "backward": "backward pass",
             "combined": "forward and backward passes combined"}[direction]
     if mode == "static":
         text += {"forward": " (the last line: the solution from every epoch)",
                  "backward": " (the first line: the solution from every epoch)",
-                 "combined": " (every line: the solution from every epoch)"}[direction]
+                 "combined": " (every line: the solution from every epoch)" if every_line is not False else
+                 " (each line the passes' combination at that epoch: their solutions from every epoch disagreed)"
+                 }[direction]
     return text
 
 

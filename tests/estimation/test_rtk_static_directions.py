@@ -79,7 +79,7 @@ def _passes(n, fwd_fixed, bwd_fixed, fwd_xyz, bwd_xyz, sigma_m=1e-3):
 def test_static_combined_is_the_solution_from_every_epoch_at_every_epoch():
     """Closed cases of :func:`~cdgps_cli.estimation.rtk_multi._static_smoothed`: the partial solutions in between
     (5 cm off, fixed) play no part; the two solutions from every epoch decide, as one epoch of the combination."""
-    from cdgps_cli.estimation.rtk_multi import _static_smoothed
+    from cdgps_cli.estimation.rtk_multi import _combine, _static_smoothed
     n = 5
     f, b = _passes(n, [False, True, True, True, True], [True, True, True, True, False], [1.0, 2.0, 3.0],
                    [1.0, 2.0, 3.0002])
@@ -87,11 +87,20 @@ def test_static_combined_is_the_solution_from_every_epoch_at_every_epoch():
     assert out["fixed"].all() and out["rejected"] == 0
     assert np.allclose(out["fixed_xyz"], [1.0, 2.0, 3.0001], atol=1e-12)       # equal σ: the mean
     assert np.allclose(out["fixed_cov"], np.eye(3) * 1e-6)
-    # two fixes from every epoch 3 cm apart (30 σ): one is wrong; every epoch float, each counted rejected
+    # two fixes from every epoch 3 cm apart (30 σ): one is wrong; each epoch then is the two passes' own combination
+    # (the per-epoch rule of a moving rover): here the partial solutions in between (both 5 cm off the forward's)
+    # disagree by 3 cm too, so every epoch is float and counted rejected
     f, b = _passes(n, [True] * n, [True] * n, [1.0, 2.0, 3.0], [1.0, 2.0, 3.03])
+    out, per_epoch = _static_smoothed(f, b), _combine(f, b)
+    for k in ("fixed", "fixed_xyz", "float_xyz", "fixed_cov", "float_cov"):
+        assert np.array_equal(out[k], per_epoch[k], equal_nan=True), k
+    assert not out["fixed"].any() and out["rejected"] == per_epoch["rejected"] == n
+    # the review's case: the ends disagree (9 mm, formal σ 1 mm) but the partial solutions in between agree: those
+    # epochs fixed, as the per-epoch combination fixes them (going float everywhere was worse than either pass)
+    f, b = _passes(n, [True] * n, [True] * n, [1.0, 2.0, 3.0], [1.0, 2.0, 3.009])
+    b["fixed_xyz"][1:-1] = f["fixed_xyz"][1:-1]
     out = _static_smoothed(f, b)
-    assert not out["fixed"].any() and out["rejected"] == n and np.isnan(out["fixed_xyz"]).all()
-    assert np.allclose(out["float_xyz"], out["float_xyz"][0]) and np.isfinite(out["float_xyz"]).all()
+    assert out["fixed"][1:-1].all() and out["rejected"] == 2
     # only the backward pass's solution from every epoch is fixed, and its float agrees: fixed there, everywhere
     f, b = _passes(n, [True] * (n - 1) + [False], [True] * n, [1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
     out = _static_smoothed(f, b)
@@ -108,3 +117,10 @@ def test_the_files_say_which_passes_and_which_line_holds_the_solution(runs):
     for d in runs:
         r = runs[d][1]["ratio"]
         assert r.max() == pytest.approx(999.9) and np.all(r <= 999.9)
+
+
+def test_the_header_says_when_static_combined_fell_back_to_each_epochs_combination():
+    from cdgps_cli.pipeline.gnss_multi import _passes_text
+    assert _passes_text("static", "combined", True).endswith("(every line: the solution from every epoch)")
+    assert "each line the passes' combination at that epoch" in _passes_text("static", "combined", False)
+    assert _passes_text("kinematic", "combined") == "forward and backward passes combined"

@@ -396,8 +396,13 @@ def test_the_command_row_can_be_typed_again(page):
     known = {o for p in cmd.params for o in p.opts}
     assert words[:3] == ["cdgps", "report", "run"]
     assert {w for w in words if w.startswith("--")} <= known
+    cmd.make_context("run", words[3:] + ["-o", "x"])         # the command line parses (options, values, flags)
     assert set(prov["settings"]) == {"band_pct", "seen_pct", "min_mac", "fmax_hz"}
     assert "settings" in page[1] and "--band-pct" not in page[1]
+    # a flag (--no-spectra) is written as the flag alone ("--no-spectra True" could not be typed again)
+    flagged = command_line({**prov, "options": {**prov["options"], "--no-spectra": True}})
+    cmd.make_context("run", shlex.split(flagged)[3:] + ["-o", "x"])
+    assert "--no-spectra True" not in flagged and "--no-spectra" in flagged
 
 
 def test_a_static_gnss_page_shows_no_none_and_no_rounding_noise(tmp_path):
