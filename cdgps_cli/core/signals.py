@@ -63,6 +63,9 @@ SIGNALS = {s.name: s for s in (
 
 SYSTEM_NAMES = {"G": "GPS", "E": "Galileo", "C": "BeiDou", "R": "GLONASS"}
 
+#: the RINEX systems no signal of :data:`SIGNALS` belongs to, by name (named when a file holds their phases)
+OTHER_SYSTEM_NAMES = {"J": "QZSS", "S": "SBAS", "I": "NavIC/IRNSS"}
+
 
 def signal(name: str) -> Signal:
     """The :class:`Signal` called ``name``; ValueError listing the known names otherwise."""

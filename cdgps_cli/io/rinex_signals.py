@@ -208,6 +208,15 @@ def signals_in_file(path: str | Path) -> list[str]:
     return out
 
 
+def phase_systems_in_file(path: str | Path) -> set[str]:
+    """The systems (RINEX letters) whose carrier phase a RINEX 3 observation file's header lists (``SYS / # / OBS
+    TYPES`` with an ``L`` type); a RINEX 2 file: none (its types are not per system)."""
+    _, hdr, _, _ = _observation_header(path)
+    if hdr.version < 3:
+        return set()
+    return {sys for sys, types in hdr.info["obs_types"].items() if any(str(t).startswith("L") for t in types)}
+
+
 def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
                        read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
     """Read the phases and ranges of ``signals`` (e.g. ``["G:L1", "G:L2", "E:E1", "E:E5a"]``).

@@ -982,6 +982,7 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     source = (', '.join(map(str, nav_paths)) if nav_paths else
               "the RXM-SFRBX frames of the u-blox logs (no --nav given)"
               if any(is_ubx_log(p) for p in all_files) else "any file (no --nav given)")
+    warnings += _unprocessed_systems_note(files)
     if lost:
         warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by "
                         f"{'both files' if len(files) == 2 else 'every receiver'} are not used: no ephemerides for "
@@ -992,6 +993,24 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
                          + ", ".join(f"{n} {'holds ' if i == 0 else ''}{' '.join(sorted(held[n])) or 'none'}"
                                      for i, n in enumerate(files)))
     return use
+
+
+def _unprocessed_systems_note(files: dict) -> list:
+    """A note naming the systems (QZSS, SBAS, NavIC) whose phases every receiver's RINEX 3 files hold and that no
+    signal of cdgps belongs to (``auto`` left them out without a word; RTKLIB uses QZSS)."""
+    from cdgps_cli.core.signals import OTHER_SYSTEM_NAMES  # noqa: PLC0415
+    from cdgps_cli.io.rinex_signals import phase_systems_in_file  # noqa: PLC0415
+
+    held = None
+    for fs in files.values():
+        mine = set().union(*(phase_systems_in_file(p) for p in fs if not is_ubx_log(p)))
+        held = mine if held is None else held & mine
+    other = sorted(c for c in (held or ()) if c in OTHER_SYSTEM_NAMES)
+    if not other:
+        return []
+    return [f"{', '.join(f'{OTHER_SYSTEM_NAMES[c]} ({c})' for c in other)} phases held by "
+            f"{'both files' if len(files) == 2 else 'every receiver'} are not used: cdgps processes GPS, Galileo, "
+            f"BeiDou and GLONASS signals"]
 
 
 def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:

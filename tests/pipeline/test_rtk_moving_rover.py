@@ -42,9 +42,9 @@ def velocity(climb, tmp_path_factory):
     """The climbing rover in constant-velocity mode at the simulated ACCEL, each direction solved once
     (forward, backward and combined, the default): ``{direction: (summary, solution CSV path, solution)}``,
     read only by the tests (the two velocity tests and the output-format test used to solve them again)."""
-    from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS
+    from cdgps_cli.config.options import MULTI_GNSS_DEFAULTS, default_direction
 
-    assert MULTI_GNSS_DEFAULTS["direction"] == "combined"
+    assert MULTI_GNSS_DEFAULTS["direction"] is None and default_direction("constant-velocity") == "combined"
     d = tmp_path_factory.mktemp("velocity")
     out = {}
     for direction in ("forward", "backward", "combined"):
