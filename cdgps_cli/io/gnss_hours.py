@@ -30,6 +30,7 @@ import pandas as pd
 from cdgps_cli.config.structure import GnssConfig
 from cdgps_cli.core.records import OBS_COLUMNS
 from cdgps_cli.core import beside, heap
+from cdgps_cli.config.options import HEADER_CHECK_EPOCHS
 from cdgps_cli.core.signals import anchor_signal
 from cdgps_cli.io import gnss_archive
 from cdgps_cli.io import gnss_run as g
@@ -234,6 +235,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
     last: dict = {n: None for n in names}
     for n in names:
         say(f"reading {_kind(hours[n]).upper()} {inp.files[n][1]} ({n}) hour by hour …")
+    first: dict = {n: [] for n in names}         # each receiver's first epochs' raw rows, at full precision
     for k in keys:
         block = []
         for n, parts in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k)):
@@ -241,11 +243,14 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
                 last[n] = _checked(hours[n][f], j, info, last[n], strict)
                 infos[n][f].append(info)
                 thin[n][f].add(raw, sig)
+                _keep_first_epochs(first[n], raw)
             block.append(_joined(parts) if parts else _empty_tables(cfg.signals, _kind(hours[n])))
         yield block
         del block, parts
         heap.trim()           # (the block's freed pages back to the system: its memory does not add up block by block)
     joins, join_warnings = {}, []
+    inp.first_rows = {n: g.first_epoch_rows(pd.concat(first[n], ignore_index=True).sort_values("time_gps_s", kind="stable"),
+                                            HEADER_CHECK_EPOCHS) for n in names if first[n]}
     inp.receivers = {n: _receiver(cfg, inp, n, hours[n], given[n], infos[n], thin[n], l1_opt, joins, join_warnings)
                      for n in names}
     inp.joins = joins
@@ -254,6 +259,15 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
     inp.warnings[0:0] = [w for _, w in join_warnings] + [w for n, rx in inp.receivers.items()
                                                           for w in g._receiver_warnings(n, inp.files[n][1], rx)]
     inp.warnings += [w for n, rx in inp.receivers.items() for w in g.empty_epochs_warning(n, inp.files[n][1], rx)]
+
+
+def _keep_first_epochs(kept: list, raw: pd.DataFrame) -> None:
+    """Append to ``kept`` the rows of ``raw`` (a block of a receiver's raw table) while fewer than
+    :data:`HEADER_CHECK_EPOCHS` epochs are kept: the record's first epochs at full precision (the thin tables keep
+    pseudoranges as float32), for a rover's nominal position (:func:`cdgps_cli.io.gnss_run.first_epoch_rows`)."""
+    have = sum(int(np.unique(r["time_gps_s"].to_numpy()).size) for r in kept)
+    if have < HEADER_CHECK_EPOCHS and len(raw):
+        kept.append(g.first_epoch_rows(raw, HEADER_CHECK_EPOCHS - have).copy())
 
 
 def _joined(parts: list) -> tuple:

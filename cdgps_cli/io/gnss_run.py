@@ -632,6 +632,10 @@ class IngestInputs:
     """Antenna → its files in time order (several: one record joined, :mod:`cdgps_cli.io.gnss_sequence`)."""
     joins: dict | None = None
     """Antenna with several files → how they joined (files, gaps, overlaps; GPS s)."""
+    first_rows: dict | None = None
+    """Antenna → the raw rows (full precision) of its record's first :data:`~cdgps_cli.config.options.
+    HEADER_CHECK_EPOCHS` epochs, for the nominal position of a rover without one (set by the hour-by-hour reading,
+    whose receivers keep thin tables; the whole reading's receivers hold every row)."""
     antennas: dict | None = None
     """With ``[gnss] antex``: what :func:`antennas_info` says of the calibrations the run keeps (set by the ingest's
     checks); None: none."""
@@ -834,9 +838,24 @@ def _refuse_lost_data(name: str, rx: GnssReceiver, paths: list) -> None:
                              f"UBX data: {', '.join(f['problems'])} (refused by --strict)")
 
 
-def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
+def first_epoch_rows(raw: pd.DataFrame, n_epochs: int) -> pd.DataFrame:
+    """The rows of a receiver's raw table at its first ``n_epochs`` distinct time tags (its record's first epochs)."""
+    t = raw["time_gps_s"].to_numpy(dtype=np.float64)
+    tags = np.unique(t)
+    if tags.size <= n_epochs:
+        return raw
+    return raw[t <= tags[n_epochs - 1]]
+
+
+#: the position source of a rover placed at ingest by its pseudoranges (no config position, no header position)
+INGEST_SPP_SOURCE = "pseudorange single-point position of its first epochs (ingest)"
+
+
+def nominal_positions(cfg: GnssConfig, inp: IngestInputs, single_point=None) -> dict:
     """Antenna → (source, ECEF position m as list) or (None, None): the config's ``position_ecef_m``,
-    else the RINEX header's APPROX POSITION XYZ.  Appends the warnings (and raises for a master
+    else the RINEX header's APPROX POSITION XYZ, else for a rover ``single_point(name)`` (ECEF m or None: its
+    pseudorange single-point position, :func:`cdgps_cli.pipeline.gnss_ingest.first_epochs_position`), the origin of
+    its displacement states in every window of the run.  Appends the warnings (and raises for a master
     without a position while there are rovers)."""
     receivers, master, files, warnings = inp.receivers, inp.master, inp.files, inp.warnings
     pos_src = {}
@@ -857,8 +876,15 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs) -> dict:
         warnings.append(msg + " (needed once rovers are added)")
     for n in rovers:
         if pos_src[n][0] is None:
-            warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange single-point "
-                            f"position, and the displacement states refer to it")
+            x = single_point(n) if single_point is not None else None
+            if x is not None:
+                pos_src[n] = (INGEST_SPP_SOURCE, [float(v) for v in x])
+                warnings.append(f"{n}: no nominal position (header or config): its pseudorange single-point position "
+                                f"of its first epochs ({' '.join(f'{v:.1f}' for v in x)}, good to a few metres) is, "
+                                f"and the displacement states of every window of the run refer to it")
+            else:
+                warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange "
+                                f"single-point position, and the displacement states refer to it")
     return pos_src
 
 

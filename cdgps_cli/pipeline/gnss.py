@@ -55,7 +55,7 @@ from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 
-from cdgps_cli.io.gnss_run import GnssRun, antennas_info
+from cdgps_cli.io.gnss_run import INGEST_SPP_SOURCE, GnssRun, antennas_info
 from cdgps_cli.pipeline.antenna_models import receiver_with_antenna_model
 from cdgps_cli.pipeline.gnss_ingest import anchor_obs, signal_obs
 from cdgps_cli.io import states as states_io
@@ -133,9 +133,16 @@ def _position_args(run: GnssRun, name: str):
     a = run.cfg.antenna(name)
     if a is not None and a.position_ecef_m is not None:
         return np.asarray(a.position_ecef_m, dtype=np.float64)
-    if src == "config position_ecef_m" and pos is not None:
-        return np.asarray(pos, dtype=np.float64)
+    if src in ("config position_ecef_m", INGEST_SPP_SOURCE) and pos is not None:
+        return np.asarray(pos, dtype=np.float64)        # (a rover placed at ingest: the same origin in every window)
     return None
+
+
+def _nominal_source(run: GnssRun, name: str, solver_source: str) -> str:
+    """What a rover's nominal position is, for INIT: the solver's words, or, where it was "given" by the run, the
+    run's own source (the config, or ingest's single-point position of the first epochs)."""
+    src = run.receivers[name].info.get("position_source")
+    return src if solver_source == "given" and src else solver_source
 
 
 def _check_master_position(run: GnssRun):
@@ -192,7 +199,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "states": res["states"],
             "sigma": dict(zip(names, sol["sigma_enu_m"])),
             "nominal_ecef_m": res["rover_apriori_ecef_m"],
-            "nominal_source": res["rover_apriori_source"],
+            "nominal_source": _nominal_source(run, r, res["rover_apriori_source"]),
             "rover_ecef_m": res["rover_ecef_m"],
             **({"rover_troposphere_ecef_m": res["rover_troposphere_ecef_m"]} if "rover_troposphere_ecef_m" in res else {}),
             "baseline_enu_from_master_m": res["baseline_enu_from_master_m"],

@@ -109,7 +109,7 @@ def ingest_gnss(cfg: GnssConfig, out_path: str | Path, *, rinex: dict | None = N
                                       progress=progress, strict=strict)
     if inp.nav is not None:
         _check_coverage(inp, cfg.signals)
-    pos_src = gnss_run.nominal_positions(cfg, inp)
+    pos_src = gnss_run.nominal_positions(cfg, inp, lambda n: first_epochs_position(inp, n))
     common = _common_epochs(cfg, inp)
     say(f"writing {out_path} …")
     lock = {n: lock_summary(rx, lock_obs(rx, cfg.signals)) for n, rx in inp.receivers.items()}
@@ -133,7 +133,7 @@ def _ingest_hour_by_hour(cfg: GnssConfig, out_path, inp, blocks, sensor_paths, s
         try:
             if inp.nav is not None:
                 _check_coverage(inp, cfg.signals)
-            pos_src = gnss_run.nominal_positions(cfg, inp)
+            pos_src = gnss_run.nominal_positions(cfg, inp, lambda n: first_epochs_position(inp, n))
             common = _common_epochs(cfg, inp)
             ant_att, _ = antenna_parts(cfg, inp, antex)
         except CdgpsError as exc:
@@ -623,6 +623,26 @@ def _raw_single_point(raw: pd.DataFrame, nav: pd.DataFrame, what: str, x0=None,
     if x is None:
         raise CdgpsError(f"{what}: no L1 pseudorange covered by the navigation data for a single-point position")
     return x
+
+
+def first_epochs_position(inp: "gnss_run.IngestInputs", name: str) -> np.ndarray | None:
+    """A rover's nominal position at ingest when neither the config nor its header gives one: the pseudorange
+    single-point position of its record's first :data:`HEADER_CHECK_EPOCHS` epochs (ECEF m; good to a few metres),
+    seeded at the master's position, so that every window of the run (``init --start``, ``cdgps batch``) refers its
+    displacement states to the same point (each window's own single-point position moved them by metres: a sweep
+    of the real M8P pair's 5-minute windows); None without navigation data or a solution (``init`` then places it)."""
+    if inp.nav is None or name not in inp.receivers:
+        return None
+    raw = (inp.first_rows or {}).get(name)
+    raw = gnss_run.first_epoch_rows(inp.receivers[name].raw, HEADER_CHECK_EPOCHS) if raw is None else raw
+    if not len(raw):
+        return None
+    mh = inp.receivers[inp.master].header
+    x0 = antenna_reference_point_m(mh, str(inp.files[inp.master][1])) if isinstance(mh, dict) else None
+    try:
+        return _raw_single_point(raw, inp.nav, f"{inp.files[name][1]} ({name})", x0)
+    except CdgpsError:
+        return None
 
 
 def _spp_near(rx: "gnss_run.GnssReceiver", nav_paths, x0, what: str):
