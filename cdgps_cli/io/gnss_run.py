@@ -1538,6 +1538,31 @@ def gnss_info_json(info: dict) -> bytes:
 # starter configs from the files' headers
 
 
+def _disjoint_spans_notes(master: str, receivers: dict, paths: dict, comments: list, warnings: list | None) -> None:
+    """A warning and a comment for each rover whose record shares no time with the master's (two logs of different
+    days: ``ingest`` refuses the pair, "no common epochs"); receivers given as glob patterns are not judged from the
+    first file read here."""
+    from cdgps_cli.io.log_sequence import is_pattern  # noqa: PLC0415
+    from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS  # noqa: PLC0415
+
+    def span(n):
+        t = receivers[n].raw["time_gps_s"].to_numpy(dtype=np.float64) if len(receivers[n].raw) else np.zeros(0)
+        return (float(t.min()), float(t.max())) if t.size and not is_pattern(str(paths[n])) else None
+
+    age = float(EPOCH_PAIRING_DEFAULTS["max_age_s"])
+    m = span(master)
+    for n in receivers:
+        r = span(n) if n != master else None
+        if m is None or r is None or (r[0] <= m[1] + age and r[1] >= m[0] - age):
+            continue
+        said = (f"{paths[n]} ({n}) spans {gps_time_str(r[0])} – {gps_time_str(r[1])} and the master {paths[master]} "
+                f"{gps_time_str(m[0])} – {gps_time_str(m[1])}: no common epochs; 'cdgps ingest' refuses the pair")
+        comments.append(f"    {n}: NO EPOCH IN COMMON with the master {master} (its span: {gps_time_str(r[0])} – "
+                        f"{gps_time_str(r[1])})")
+        if warnings is not None:
+            warnings.append(said)
+
+
 def _first_file(p, what: str):
     """The file a starter config reads the header of: ``p``, or the first (by name) of the files a quoted glob
     pattern names (the config keeps the pattern: ``ingest`` joins the files in time order)."""
@@ -1758,6 +1783,7 @@ def starter_gnss_config(rinex: dict, ubx: dict | None = None, nav_paths=(), mast
         comments.append(f"    {master} position: NONE — write position_ecef_m below")
         if warnings is not None:
             warnings.append(said)
+    _disjoint_spans_notes(master, rinex_rx | ubx_rx, {n: p for n, p in (rinex | ubx).items()}, comments, warnings)
     header_off = None
     if master in rinex_rx and master in with_pos and master_header_check is not None:
         header_off = master_header_check(master, rinex[master], rinex_rx[master], nav_paths)

@@ -171,6 +171,20 @@ def _refuse_a_format_not_written(out_path) -> None:
                          f"(any other suffix: CSV)")
 
 
+def _refuse_disjoint_spans(base: pd.DataFrame, rover: pd.DataFrame, max_age_s: float, base_path, rover_path) -> None:
+    """CdgpsError naming both spans when no rover epoch can have a base epoch within ``max_age_s`` (logs of two days):
+    said before the rover is placed, whose single-point position with the other day's ephemerides failed first with a
+    message about satellites (a sweep of two u-blox logs seven years apart)."""
+    tb, tr = (df["time_gps_s"].to_numpy(dtype=np.float64) for df in (base, rover))
+    if not (tb.size and tr.size):
+        return
+    if tr.min() > tb.max() + max_age_s or tr.max() < tb.min() - max_age_s:
+        raise CdgpsError(f"no common epochs: {base_path} (base) spans {gps_time_str(float(tb.min()))} – "
+                         f"{gps_time_str(float(tb.max()))} and {rover_path} (rover) {gps_time_str(float(tr.min()))} – "
+                         f"{gps_time_str(float(tr.max()))}: no rover epoch has a base epoch within {max_age_s:g} s "
+                         f"(max_age_s)")
+
+
 def _refuse_empty(path, who: str) -> None:
     """An empty receiver file is named as such: from its bytes neither reader can tell which it should be."""
     p = Path(path)
@@ -212,6 +226,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
              if "glonass_k" in nav.columns else {})
     hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings)
     hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings)
+    _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
         raise nav_error
     b, r = (_without_unlocked_channels(_first_of_repeated_epochs(df, path, who, warnings), path, who, warnings)

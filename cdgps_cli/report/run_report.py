@@ -249,7 +249,10 @@ def _nis_side_text(nis_per_dof: float, lo: float) -> str:
     above it, the model misses something (noise, motion, a wrong integer) and the σ are too small."""
     if nis_per_dof < lo:
         return (f"; below it: the observations scatter less than their weights say (about {1 / np.sqrt(nis_per_dof):.1f}"
-                f"× less in σ), so the σ shown are conservative (the weights: the INIT's options sigma_a_m, sigma_b_m)")
+                f"× less in σ; the weights: the INIT's options sigma_a_m, sigma_b_m, or [gnss.displacement] phase_noise "
+                f"= \"auto\"). That says nothing of errors correlated over minutes (multipath), which the NIS of each "
+                f"epoch cannot see: a static solution's σ from a long record, and a random walk's on a low-cost "
+                f"receiver, can be several times too small all the same")
     return "; above it: the model or its noise misses something in these data, and the σ shown are too small"
 
 
