@@ -963,6 +963,10 @@ def _gnss_info_lines(g: dict) -> list:
            f"{', '.join(g['rovers']) or 'none'}, displacement {c['displacement']}; coordinates {', '.join(g['coordinates']) or '-'}"]
     for r in g["receivers"]:
         every = "one epoch" if r["interval_s"] is None else f"sampled at {r['interval_s']:g} s"   # (None: one epoch)
+        gaps = r.get("gaps")                               # (a RUN written before they were counted: none said)
+        if gaps:
+            every += (f"; {gaps['count']} gap{'s' if gaps['count'] != 1 else ''}, {gaps['missing_epochs']} epochs "
+                      f"missing, the longest {gaps['longest_s']:g} s" if gaps["count"] else "; no gap")
         out.append(f"    {r['name']:<8} {r['format']:<5} {r['file']}: {r['epochs']} epochs {r['first']} – {r['last']} "
                    f"({every}), {r['satellites']} satellites, {r['phase_rows']} phases{_signals_note(r)}; "
                    f"lock: {r['arcs']} arcs, {r['slips']} slips, {r['half_cycle_rows']} half-cycle rows; position: "

@@ -1087,12 +1087,25 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
             "first": gps_time_str(float(tu[0])), "last": gps_time_str(float(tu[-1])),
             "first_gps_s": float(tu[0]), "last_gps_s": float(tu[-1]),
             # the interval it samples at (a base logging with gaps: 1 s, not its median spacing of 3 s), as the solvers
-            "interval_s": sampling_interval_s(tu), "satellites": int(tab["sat"].nunique()),
+            "interval_s": sampling_interval_s(tu), "gaps": epoch_gaps(tu, sampling_interval_s(tu)),
+            "satellites": int(tab["sat"].nunique()),
             "rows": int(len(t)), "phase_rows": int(ph.sum()),
             "slips": int(sum(v["slips"] for v in lock.values())),
             "half_cycle_rows": int(sum(v["half_cycle_rows"] for v in lock.values())),
             "arcs": int(sum(v["arcs"] for v in lock.values())),
             "position_source": pos[0], "position_ecef_m": pos[1], **_signal_summary(rx, tab)}
+
+
+def epoch_gaps(times_s: np.ndarray, interval_s: float | None) -> dict | None:
+    """The gaps in a receiver's epochs (``times_s``: its distinct epoch times, s) at its sampling interval: spacings
+    over 1.5 intervals, with the epochs they miss (a spacing of k intervals misses k − 1) and the longest, s; None
+    with fewer than two epochs."""
+    if interval_s is None or not interval_s > 0 or times_s.size < 2:
+        return None
+    d = np.diff(np.asarray(times_s, dtype=np.float64))
+    big = d > 1.5 * interval_s
+    return {"count": int(big.sum()), "missing_epochs": int(np.sum(np.rint(d[big] / interval_s) - 1)),
+            "longest_s": float(d[big].max()) if big.any() else 0.0}
 
 
 def _signal_summary(rx: GnssReceiver, counted) -> dict:

@@ -116,3 +116,33 @@ def test_a_run_written_before_the_record_is_still_answered():
     assert r.exit_code == 0, r.output
     s = json.loads(r.stdout)
     assert "gnss/info.json" not in s["attachments"] and s["gnss"]["receivers"]
+
+
+def test_epoch_gaps_closed_cases():
+    """``info`` said "321 epochs … (sampled at 1 s)" of a u-blox base with 964 epochs missing over 20 min (a sweep):
+    each receiver's gaps are counted (spacings over 1.5 intervals), with the epochs they miss and the longest."""
+    import numpy as np
+
+    from cdgps_cli.io.gnss_run import epoch_gaps
+    t = np.array([0.0, 1.0, 2.0, 5.0, 6.0, 18.0, 19.0])
+    assert epoch_gaps(t, 1.0) == {"count": 2, "missing_epochs": 2 + 11, "longest_s": 12.0}
+    assert epoch_gaps(np.arange(10.0), 1.0) == {"count": 0, "missing_epochs": 0, "longest_s": 0.0}
+    assert epoch_gaps(np.array([3.0]), None) is None
+
+
+def test_info_counts_the_gaps_of_a_receiver(tmp_path):
+    from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, epoch_times_gps_s
+    from tests._shared import run_cli
+    d = tmp_path / "sim"
+    assert run_cli("-q", "simulate-gnss", "--duration", "120", "--seed", "2", "-o", d).exit_code == 0
+    text = (d / "base.rnx").read_text()
+    t0 = float(epoch_times_gps_s(text)[0])
+    gone = [(30, 40), (70, 72)]                                            # 10 + 2 epochs missing
+    (d / "base.rnx").write_text(edit_rinex3_obs(text, keep=lambda t: not any(a <= round(t - t0) < b for a, b in gone)))
+    assert run_cli("-q", "ingest", "--config", d / "config.toml", "-o", d / "run.mcap").exit_code == 0
+    r = run_cli("info", d / "run.mcap")
+    assert r.exit_code == 0, r.output
+    assert "(sampled at 1 s; 2 gaps, 12 epochs missing, the longest 11 s)" in r.output
+    assert "(sampled at 1 s; no gap)" in r.output                          # the rover
+    deep = run_cli("info", "--deep", "--json", d / "run.mcap")
+    assert deep.exit_code == 0 and run_cli("info", "--json", d / "run.mcap").stdout == deep.stdout
