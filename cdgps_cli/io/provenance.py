@@ -129,6 +129,8 @@ def report_provenance(command: str, options: dict, states, run=None, date: str |
 def _opt_text(v) -> str:
     if v is None:
         return "default"
+    if isinstance(v, dict):                 # a table: its pairs (a value of None inside: none, e.g. a GLONASS wavelength)
+        return ", ".join(f"{k} {'none' if x is None else _opt_text(x)}" for k, x in v.items())
     if isinstance(v, (list, tuple)):
         if not v:
             return "none"
