@@ -8,7 +8,7 @@ import click
 
 from cdgps_cli.config.options import TRACK_DEFAULTS
 from cdgps_cli.core import progress
-from cdgps_cli.cli.app import _say, _output_option, _named_by_flags, _emit_json, main
+from cdgps_cli.cli.app import _say, _warn, _output_option, _named_by_flags, _emit_json, main
 
 
 #: library field → flag of `cdgps track` / `track-structure` (their option errors name the flag given)
@@ -50,6 +50,8 @@ def track_cmd(ctx, iq_file, fmt, iq_sign, fs_hz, if_hz, prns, duration_s, pll_bn
         s = track_file(iq_file, output, fmt=fmt, fs_hz=fs_hz, if_hz=if_hz, iq_sign=iq_sign,
                        prns=list(prns) or None, duration_s=duration_s, opt=opt, noncoherent_ms=noncoherent_ms,
                        false_alarm=false_alarm, progress=None if ctx.obj.get("quiet") else progress.write)
+    for w in s["warnings"]:
+        _warn(w)
     for sat in s["satellites"]:
         cn0 = "–" if sat["cn0_dbhz"] is None else f"{sat['cn0_dbhz']:.1f}"
         _say(ctx, f"  PRN {sat['prn']:>2}: {sat['doppler_hz']:+8.1f} Hz, code {sat['code_phase_chips']:7.2f} chips, "

@@ -30,7 +30,7 @@ STATES = (STRUCTURE_STATES, GNSS_STATES)
 
 NOT_MCAP = "not a valid MCAP file (it does not start with the MCAP magic bytes)"
 _MAGIC = b"\x89MCAP0\r\n"
-_INGEST, _ESTIMATE = "cdgps.ingest", "cdgps.estimate"
+_INGEST, _ESTIMATE, _TRACK = "cdgps.ingest", "cdgps.estimate", "track"
 
 
 def mcap_kind(path: str | Path) -> str:
@@ -54,6 +54,8 @@ def mcap_kind(path: str | Path) -> str:
         return GNSS_STATES if meta[_ESTIMATE].get("kind") == "gnss" else STRUCTURE_STATES
     if _INGEST in meta:
         return GNSS_RUN if meta[_INGEST].get("kind") == "gnss" else STRUCTURE_RUN
+    if _TRACK in meta:
+        return "TRACK.mcap of receiver tracking loops (from 'cdgps track'; its phases are not a RUN's observations)"
     return "an MCAP file without cdgps metadata (not written by 'cdgps ingest' or 'cdgps estimate')"
 
 

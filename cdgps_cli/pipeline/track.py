@@ -58,18 +58,23 @@ def track_file(path: str | Path, out_path: str | Path, *, fmt: str, fs_hz: float
         raise CdgpsError(f"{path}: {n / fs_hz * 1e3:.1f} ms of samples; tracking needs at least 20 ms")
     if n < fs_hz * 1e-3 * noncoherent_ms:
         raise CdgpsError(f"{path}: {n / fs_hz * 1e3:.1f} ms of samples; --noncoherent-ms {noncoherent_ms} needs more")
+    warnings = ([f"--duration {duration_s:g} s: {path} holds {size // per / fs_hz:.4g} s of samples; all of them "
+                 f"are tracked"] if duration_s is not None and duration_s * fs_hz > size // per else [])
     blocks = iter_samples(path, fmt, iq_sign, block_samples=block_samples, max_samples=n)
     with McapOut(out_path) as out:
         writer = _TrackWriter(out)
-        res = track_stream_to(writer, head, blocks, fs_hz, prns, n_samples=n, if_hz=if_hz, opt=opt,
-                              progress=progress, noncoherent_ms=noncoherent_ms, false_alarm=false_alarm)
+        try:
+            res = track_stream_to(writer, head, blocks, fs_hz, prns, n_samples=n, if_hz=if_hz, opt=opt,
+                                  progress=progress, noncoherent_ms=noncoherent_ms, false_alarm=false_alarm)
+        except CdgpsError as exc:                 # (the acquisition's words name no file)
+            raise CdgpsError(f"{path}: {exc}" if str(path) not in str(exc) else str(exc)) from None
         summary = {"input": str(path), "input_sha256": file_sha256(path), "format": fmt, "iq_sign": iq_sign,
                    "fs_hz": fs_hz, "if_hz": if_hz, "duration_s": n / fs_hz, "cdgps_version": __version__,
                    "options": {**(opt or TrackOptions()).__dict__, "noncoherent_ms": noncoherent_ms,
                                "false_alarm": false_alarm}, "acquisition": res["acquisition"],
                    "satellites": res["satellites"]}
         out.metadata("track", {key: (v if isinstance(v, str) else json.dumps(v)) for key, v in summary.items()})
-    return summary
+    return dict(summary, warnings=warnings)
 
 
 class _TrackWriter:

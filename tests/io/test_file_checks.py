@@ -179,3 +179,15 @@ def test_refuse_deep_json_names_the_file_line_and_what_was_expected(tmp_path):
     refuse_deep_json("[" * MAX_JSON_DEPTH + "]" * MAX_JSON_DEPTH, "x.json", "X")
     with pytest.raises(CdgpsError, match=r"^x\.json, line 2: JSON nested deeper than 64 levels; expected a GAINS\.json$"):
         refuse_deep_json("{\n" + "[" * 10_000 + "]" * 10_000 + "}", "x.json", "a GAINS.json")
+
+
+def test_a_track_file_is_named_as_one(tmp_path):
+    """``export``/``init`` on a TRACK.mcap said "an MCAP file without cdgps metadata (not written by 'cdgps ingest' or
+    'cdgps estimate')" although 'cdgps track' wrote it with its metadata (a sweep)."""
+    from cdgps_cli.io.file_checks import mcap_kind
+    from cdgps_cli.io.mcap import McapOut
+
+    p = tmp_path / "track.mcap"
+    with McapOut(p) as out:
+        out.metadata("track", {"prn": "1"})
+    assert mcap_kind(p).startswith("TRACK.mcap of receiver tracking loops (from 'cdgps track'")
