@@ -71,7 +71,11 @@ def batch_cmd(ctx, manifest, out_dir, scheduler, cluster_class, cluster_option, 
                       dashboard=dashboard, cluster_class=cluster_class, cluster_options=options,
                       progress=None if ctx.obj.get("quiet") else progress.write,
                       warn=_warn)
-    except (CdgpsError, click.exceptions.Exit, click.ClickException, KeyboardInterrupt, Terminated):
+    except KeyboardInterrupt:
+        click.echo(f"cdgps: batch interrupted; the sessions done are kept: run it again with --resume to go on "
+                   f"({Path(out_dir)})", err=True)
+        raise
+    except (CdgpsError, click.exceptions.Exit, click.ClickException, Terminated):
         raise
     except Exception as exc:           # the batch layer itself, not a session (those are in batch.json)
         from cdgps_cli.io.atomic import is_no_room

@@ -113,7 +113,20 @@ class WorkerSettings(_WorkerPluginBase):
         else:
             done["malloc"] = _malloc_thresholds(os.environ.get(TRIM_KEY), self.trim_threshold)
             done["blas_env"] = {k: os.environ.setdefault(k, v) for k, v in B.BLAS_ENV.items()}
+            done["sigint"] = _ignore_sigint()
         worker.cdgps_settings = done
+
+
+def _ignore_sigint() -> str:
+    """A worker process of its own ignores Ctrl-C: the batch process stops it (its nanny), while each worker's own
+    KeyboardInterrupt printed a traceback of the task it was cancelled in (a sweep: 70 lines for one Ctrl-C)."""
+    import signal
+
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:                          # (not the process's main thread: left as it is)
+        return "kept (not the worker process's main thread)"
+    return "ignored (the batch process stops the worker)"
 
 
 def _malloc_thresholds(worker_value: str | None, wanted: str | None) -> str:

@@ -364,6 +364,10 @@ def test_the_worker_plugin_applies_the_settings_on_a_cluster_started_without_the
     assert not after["profile_callback"]
     assert after["settings"]["malloc"].startswith("MALLOC_TRIM_THRESHOLD_=65536 overridden: mmap threshold 33554432")
     assert after["settings"]["blas_env"]["OMP_NUM_THREADS"] == "1"
+    # Ctrl-C is the batch process's: a worker's own KeyboardInterrupt printed its task's traceback (a sweep)
+    assert after["settings"]["sigint"] == "ignored (the batch process stops the worker)"
+    (sig,) = plain.run(lambda: __import__("signal").getsignal(__import__("signal").SIGINT) is __import__("signal").SIG_IGN).values()
+    assert sig
     # a worker that joins later gets them too
     plain.cluster.scale(2)
     plain.wait_for_workers(2, timeout=120)
