@@ -889,6 +889,33 @@ def mode_trends(entries: list) -> list:
     return out
 
 
+def position_trends(entries: list) -> list:
+    """Per GNSS rover coordinate (``rover_e`` …): the static position of every session that estimated it, in time
+    order, with its σ, and the weighted linear trend over time (m/day, :func:`trend_fit`; χ²/dof ≫ 1: the sessions
+    scatter more than their σ say, as a low-cost receiver's multipath makes them): a settlement or a thermal drift
+    as the modes' trends show a stiffness change."""
+    by = {}
+    order = sorted(range(len(entries)), key=lambda i: (entries[i]["time"] is None, entries[i]["time"] or "", i))
+    for i in order:
+        e = entries[i]
+        for r, v in (e.get("rovers") or {}).items():
+            sig = v.get("static_sigma_m") or {}
+            for c, x in (v.get("static_enu_m") or {}).items():
+                by.setdefault(c, {"coordinate": c, "rover": r, "sessions": []})["sessions"].append(
+                    {"session": e["session"], "time": e["time"], "value_m": x, "sigma_m": sig.get(c)})
+    out = []
+    for c in sorted(by):
+        tr = by[c]
+        pts = [p for p in tr["sessions"] if p["time"] is not None]
+        t0 = _days(pts[0]["time"]) if pts else 0.0
+        tr["trend_m"], tr["trend_m_note"] = trend_fit([_days(p["time"]) - t0 for p in pts],
+                                                      [_num(p["value_m"]) for p in pts], [_num(p["sigma_m"]) for p in pts])
+        if not pts:
+            tr["trend_m_note"] = f"{NO_SPREAD}: no session of this rover has a time"
+        out.append(tr)
+    return out
+
+
 def _num(v) -> float:
     try:
         return float("nan") if v is None else float(v)

@@ -424,6 +424,7 @@ def _run_locked(sessions, manifest, outdir, client, scheduler, workers, resume, 
                "elapsed_s": round(time.perf_counter() - t0, 3), "workers": n_workers, "retries": retries,
                "resume": resume, "counts": _counts(entries), "sessions": entries,
                "trends": B.mode_trends([e for e in entries if "modes" in e]),
+               "position_trends": B.position_trends([e for e in entries if "rovers" in e]),
                "failures": [{"session": e["session"], "error": e["error"]} for e in entries if "error" in e]}
     summary = B.finite_json(summary)
     from cdgps_cli.io.atomic import write_bytes_atomic

@@ -77,9 +77,10 @@ def _estimate_gnss(s, run_mcap: str, init_json: str, init: dict, init_text: str)
     run = read_gnss_run(run_mcap, window=init_window(init))
     w = gnss_estimate(run, init, init_text, s.path("estimate"), smooth=s.options["smooth"], progress=None,
                       extra_options=None)
-    return {"events": w["events"], "rovers": {r: {"solution": v["solution"], "static_enu_m": v["static_enu_m"],
-                                                  "kinematic_rms_m": v["kinematic_rms_m"]}
-                                              for r, v in w["rovers"].items()}}
+    return {"events": w["events"], "nis_per_dof": w.get("mean_nis_per_dof"),
+            "rovers": {r: {"solution": v["solution"], "static_enu_m": v["static_enu_m"],
+                           "static_sigma_m": v["static_sigma_m"], "kinematic_rms_m": v["kinematic_rms_m"]}
+                       for r, v in w["rovers"].items()}}
 
 
 def _init(s) -> dict:

@@ -11,7 +11,7 @@ from cdgps_cli.pipeline import batch as B
 ROOT = Path(__file__).resolve().parents[2]
 CONFIG = ROOT / "configs" / "testbed-1998-lumped.toml"
 DURATION_S = 16
-IGNORED = {B.RECORD_DIR, B.CAMPAIGN_FILE, "batch.json", "index.html", "trends.png"}
+IGNORED = {B.RECORD_DIR, B.CAMPAIGN_FILE, "batch.json", "index.html", "trends.png", "positions.png"}
 
 
 def assert_same_tree(ref: Path, out: Path, n_files: int) -> None:

@@ -46,3 +46,33 @@ def test_sessions_without_times_fall_back_to_manifest_order(tmp_path):
     assert _session_axis(s["trends"]) == {"s1": "s1", "s<2>": "s<2>", "s3": "s3"}
     write_index(s, tmp_path)
     assert (tmp_path / "trends.png").is_file()
+
+
+def test_gnss_sessions_get_their_positions_and_a_position_trend(tmp_path):
+    """GNSS sessions showed no position, "–" for NIS and an empty mode-trend table with no word (a sweep of a real
+    pair's windows): each row now holds the rovers' static E/N/U ± 1σ, and a position-trend table and figure
+    replace the modes' (the slope of a linear drift recovered, χ²/dof ≈ 0 for points on the line)."""
+    from cdgps_cli.pipeline.batch import position_trends
+
+    times = ["2026-11-01T00:00:00Z", "2026-11-02T00:00:00Z", "2026-11-03T00:00:00Z", "2026-11-05T00:00:00Z"]
+    sessions = [{"session": f"w{i}", "time": t, "status": "done", "folder": str(tmp_path / f"w{i}"), "elapsed_s": 2.0,
+                 "integers_fixed": 56, "integers": 68, "nis_per_dof": 0.16,
+                 "rovers": {"rover": {"solution": "fixed",
+                                      "static_enu_m": {"rover_e": 0.001 + 0.002 * d, "rover_n": 0.002, "rover_u": 0.003},
+                                      "static_sigma_m": {"rover_e": 0.0003, "rover_n": 0.0003, "rover_u": 0.0007}}}}
+                for i, (t, d) in enumerate(zip(times, [0, 1, 2, 4]))]
+    trends = position_trends(sessions)
+    by = {t["coordinate"]: t for t in trends}
+    assert set(by) == {"rover_e", "rover_n", "rover_u"} and len(by["rover_e"]["sessions"]) == 4
+    fit = by["rover_e"]["trend_m"]
+    assert abs(fit["slope_per_day"] - 0.002) < 1e-12 and fit["chi2_per_dof"] < 1e-12     # 2 mm/day on the line
+    assert by["rover_n"]["trend_m"] is None or abs(by["rover_n"]["trend_m"]["slope_per_day"]) < 1e-12
+    summary = {"manifest": str(tmp_path / "m.toml"), "outdir": str(tmp_path), "started": "a", "finished": "b",
+               "elapsed_s": 8.0, "workers": 2, "counts": {"sessions": 4, "done": 4}, "sessions": sessions,
+               "trends": [], "position_trends": trends, "failures": []}
+    write_index(summary, tmp_path)
+    page = (tmp_path / "index.html").read_text()
+    assert "rover: E +1.00±0.30 N +2.00±0.30 U +3.00±0.70" in page and "0.160" in page
+    assert "No session identified modes" in page and "<h2>Position trends</h2>" in page
+    assert "<td>+2.00 ± 0.10</td>" in page                # σ 0.3 mm / √Σ(t − t̄)² = 0.101 mm/day
+    assert (tmp_path / "positions.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not (tmp_path / "trends.png").exists()
