@@ -1040,7 +1040,8 @@ def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_
         _check_master_header(master, nav, xm)
     xr0 = header_position_m(rover.header) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)
     warnings += rover_delta_note(rover.header, _where(rover))
-    rover_pos_source = "RINEX header APPROX POSITION XYZ" if rover_xyz is None else "given"
+    rover_pos_source = ("RINEX header APPROX POSITION XYZ" if rover_xyz is None else
+                        rover.header.get("given_position_source") or "given")   # (the run's words, when it gave it)
     if xr0 is None:
         xr0 = _station_spp(rover, nav, xm)
         rover_pos_source = "pseudorange single-point position (no header position)"

@@ -879,12 +879,15 @@ def nominal_positions(cfg: GnssConfig, inp: IngestInputs, single_point=None) -> 
             x = single_point(n) if single_point is not None else None
             if x is not None:
                 pos_src[n] = (INGEST_SPP_SOURCE, [float(v) for v in x])
-                warnings.append(f"{n}: no nominal position (header or config): its pseudorange single-point position "
-                                f"of its first epochs ({' '.join(f'{v:.1f}' for v in x)}, good to a few metres) is, "
-                                f"and the displacement states of every window of the run refer to it")
+                warnings.append(f"{n}: no nominal position (header or config): the pseudorange single-point position "
+                                f"of its first epochs ({' '.join(f'{v:.1f}' for v in x)}, good to a few metres) is its "
+                                f"nominal position, and the displacement states of every window of the run refer to it")
             else:
-                warnings.append(f"{n}: no nominal position (header or config); 'cdgps init' uses a pseudorange "
-                                f"single-point position, and the displacement states refer to it")
+                warnings.append(f"{n}: no nominal position (header or config), and none from its first epochs' "
+                                f"pseudoranges (too few satellites with an ephemeris there): each 'cdgps init' places "
+                                f"it at the single-point position of the epochs it reads, so windows of this run "
+                                f"(init --start, batch sessions) refer to points metres apart; write its "
+                                f"position_ecef_m in the config to give them one")
     return pos_src
 
 

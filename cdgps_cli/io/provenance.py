@@ -126,11 +126,24 @@ def report_provenance(command: str, options: dict, states, run=None, date: str |
     return out
 
 
+def value_text(v) -> str:
+    """A recorded option's value as the reports say it: a table as ``key value`` pairs (a value of None inside:
+    "per satellite" — the only such values are GLONASS signals' wavelengths, one per satellite), lists joined by
+    commas, numbers to 6 significant digits."""
+    if isinstance(v, dict):
+        return ", ".join(f"{k} {'per satellite' if x is None else value_text(x)}" for k, x in v.items())
+    if isinstance(v, (list, tuple)):
+        return ",".join(value_text(x) for x in v)
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
 def _opt_text(v) -> str:
     if v is None:
         return "default"
-    if isinstance(v, dict):                 # a table: its pairs (a value of None inside: none, e.g. a GLONASS wavelength)
-        return ", ".join(f"{k} {'none' if x is None else _opt_text(x)}" for k, x in v.items())
+    if isinstance(v, dict):
+        return value_text(v)
     if isinstance(v, (list, tuple)):
         if not v:
             return "none"

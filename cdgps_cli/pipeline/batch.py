@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
+import numpy as np
+
 from cdgps_cli import __version__
 from cdgps_cli.core import heap
 from cdgps_cli.core.errors import CdgpsError
@@ -893,16 +895,21 @@ def position_trends(entries: list) -> list:
     """Per GNSS rover coordinate (``rover_e`` …): the static position of every session that estimated it, in time
     order, with its σ, and the weighted linear trend over time (m/day, :func:`trend_fit`; χ²/dof ≫ 1: the sessions
     scatter more than their σ say, as a low-cost receiver's multipath makes them): a settlement or a thermal drift
-    as the modes' trends show a stiffness change."""
-    by = {}
+    as the modes' trends show a stiffness change.  Each session's E/N/U are about its own run's nominal position
+    (``nominal_ecef_m``); sessions of runs with other nominals are taken to the rover's first session's (a review:
+    three runs of one antenna, each placed at its own first epochs, gave slopes of metres a day), and each point
+    says the origin it is about (``origin_ecef_m``)."""
+    by, origin = {}, {}
     order = sorted(range(len(entries)), key=lambda i: (entries[i]["time"] is None, entries[i]["time"] or "", i))
     for i in order:
         e = entries[i]
         for r, v in (e.get("rovers") or {}).items():
             sig = v.get("static_sigma_m") or {}
-            for c, x in (v.get("static_enu_m") or {}).items():
-                by.setdefault(c, {"coordinate": c, "rover": r, "sessions": []})["sessions"].append(
-                    {"session": e["session"], "time": e["time"], "value_m": x, "sigma_m": sig.get(c)})
+            enu = _about_origin(v, origin.setdefault(r, v.get("nominal_ecef_m")))
+            for c, x in enu.items():
+                by.setdefault(c, {"coordinate": c, "rover": r, "origin_ecef_m": origin[r], "sessions": []})[
+                    "sessions"].append({"session": e["session"], "time": e["time"], "value_m": x,
+                                        "sigma_m": sig.get(c)})
     out = []
     for c in sorted(by):
         tr = by[c]
@@ -914,6 +921,25 @@ def position_trends(entries: list) -> list:
             tr["trend_m_note"] = f"{NO_SPREAD}: no session of this rover has a time"
         out.append(tr)
     return out
+
+
+def _about_origin(v: dict, origin) -> dict:
+    """A session's static E/N/U (``v["static_enu_m"]``, about its run's ``nominal_ecef_m``) about ``origin`` (ECEF m;
+    None or the same nominal: as they are)."""
+    enu = dict(v.get("static_enu_m") or {})
+    nominal = v.get("nominal_ecef_m")
+    if origin is None or nominal is None or np.array_equal(np.asarray(origin, float), np.asarray(nominal, float)):
+        return enu
+    if len(enu) != 3 or not all(_num(x) == _num(x) for x in enu.values()):
+        return {c: float("nan") for c in enu}                 # (a partial or NaN position cannot be moved)
+    from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix  # noqa: PLC0415
+
+    def frame(x):
+        lat, lon, _ = ecef_to_geodetic(np.asarray(x, dtype=np.float64))
+        return enu_matrix(lat, lon)
+
+    xyz = np.asarray(nominal, float) + frame(nominal).T @ np.array([_num(x) for x in enu.values()])
+    return dict(zip(enu, (frame(origin) @ (xyz - np.asarray(origin, float))).tolist()))
 
 
 def _num(v) -> float:

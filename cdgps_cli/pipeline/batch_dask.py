@@ -81,6 +81,9 @@ class WorkerSettings(_WorkerPluginBase):
       back to large values (:data:`MMAP_THRESHOLD_B`; the variable itself is read only at process start);
     * sets the BLAS / OpenMP thread variables (:data:`cdgps_cli.pipeline.batch.BLAS_ENV`) where the
       worker has none (a BLAS already loaded keeps its pool: start workers with them, or with a nanny);
+    * on a cluster the batch started itself (``ignore_sigint``), makes the worker process ignore Ctrl-C: the batch
+      stops its workers, whose own KeyboardInterrupt printed their tasks' tracebacks (a user's cluster keeps its
+      handling);
 
     and records what it did in ``worker.cdgps_settings``.  In a worker thread of the batch's own process
     (an in-process cluster) only the profiler is stopped: the process's environment and allocator are
@@ -90,9 +93,10 @@ class WorkerSettings(_WorkerPluginBase):
     name = "cdgps-batch-worker-settings"
     idempotent = False
 
-    def __init__(self, profile: bool = False, trim_threshold: str | None = None):
+    def __init__(self, profile: bool = False, trim_threshold: str | None = None, ignore_sigint: bool = False):
         import socket
 
+        self.ignore_sigint = bool(ignore_sigint)      # only on a cluster the batch started (a user's keeps its own)
         self.profile = bool(profile)
         self.trim_threshold = trim_threshold          # the batch process's MALLOC_TRIM_THRESHOLD_, if any
         self.origin = (socket.gethostname(), os.getpid())
@@ -113,7 +117,8 @@ class WorkerSettings(_WorkerPluginBase):
         else:
             done["malloc"] = _malloc_thresholds(os.environ.get(TRIM_KEY), self.trim_threshold)
             done["blas_env"] = {k: os.environ.setdefault(k, v) for k, v in B.BLAS_ENV.items()}
-            done["sigint"] = _ignore_sigint()
+            done["sigint"] = (_ignore_sigint() if self.ignore_sigint else
+                              "kept (a cluster the batch did not start: its own handling)")
         worker.cdgps_settings = done
 
 
@@ -142,9 +147,11 @@ def _malloc_thresholds(worker_value: str | None, wanted: str | None) -> str:
             f"{2 * MMAP_THRESHOLD_B} B" if ok else f"MALLOC_TRIM_THRESHOLD_={worker_value} kept (mallopt refused)")
 
 
-def apply_worker_settings(client, dashboard: bool = False) -> None:
-    """Register :class:`WorkerSettings` on ``client``'s cluster (its workers now and later)."""
-    client.register_plugin(WorkerSettings(profile=dashboard, trim_threshold=os.environ.get(TRIM_KEY)))
+def apply_worker_settings(client, dashboard: bool = False, own_cluster: bool = False) -> None:
+    """Register :class:`WorkerSettings` on ``client``'s cluster (its workers now and later); ``own_cluster``: the
+    batch started the cluster (its workers then leave Ctrl-C to it)."""
+    client.register_plugin(WorkerSettings(profile=dashboard, trim_threshold=os.environ.get(TRIM_KEY),
+                                          ignore_sigint=own_cluster))
 
 
 def local_cluster(workers: int | None = None, dashboard: bool = False, env: dict | None = None):
@@ -409,7 +416,7 @@ def _run_locked(sessions, manifest, outdir, client, scheduler, workers, resume, 
         client, cluster = connect(scheduler, workers, dashboard, cluster_class, cluster_options)
     try:
         out = B.prepare_outdir(sessions, manifest, outdir)           # nothing written if it cannot connect
-        apply_worker_settings(client, dashboard)
+        apply_worker_settings(client, dashboard, own_cluster=cluster is not None)
         t0 = time.perf_counter()
         started = _now()
         n_workers = _n_workers(client)

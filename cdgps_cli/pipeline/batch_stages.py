@@ -79,7 +79,8 @@ def _estimate_gnss(s, run_mcap: str, init_json: str, init: dict, init_text: str)
                       extra_options=None)
     return {"events": w["events"], "nis_per_dof": w.get("mean_nis_per_dof"),
             "rovers": {r: {"solution": v["solution"], "static_enu_m": v["static_enu_m"],
-                           "static_sigma_m": v["static_sigma_m"], "kinematic_rms_m": v["kinematic_rms_m"]}
+                           "static_sigma_m": v["static_sigma_m"], "kinematic_rms_m": v["kinematic_rms_m"],
+                           "nominal_ecef_m": (init.get("rovers", {}).get(r) or {}).get("nominal_ecef_m")}
                        for r, v in w["rovers"].items()}}
 
 

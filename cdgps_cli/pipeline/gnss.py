@@ -91,7 +91,9 @@ def _stations(run: GnssRun, notes: dict | None = None):
         table, said = without_unlocked_channels(signal_obs(rx) if sigs else None, f"{rx.file} ({n})")
         if notes is not None:
             notes[n] = said
-        stations[n] = Station(n, dict(rx.header, path=rx.file), anchor_obs(rx, sigs), table)
+        # a position the run holds (the config's, ingest's single-point one) is named as the solvers' a-priori source
+        given = {"given_position_source": rx.info.get("position_source")} if _position_args(run, n) is not None else {}
+        stations[n] = Station(n, dict(rx.header, path=rx.file, **given), anchor_obs(rx, sigs), table)
     return stations
 
 
@@ -136,13 +138,6 @@ def _position_args(run: GnssRun, name: str):
     if src in ("config position_ecef_m", INGEST_SPP_SOURCE) and pos is not None:
         return np.asarray(pos, dtype=np.float64)        # (a rover placed at ingest: the same origin in every window)
     return None
-
-
-def _nominal_source(run: GnssRun, name: str, solver_source: str) -> str:
-    """What a rover's nominal position is, for INIT: the solver's words, or, where it was "given" by the run, the
-    run's own source (the config, or ingest's single-point position of the first epochs)."""
-    src = run.receivers[name].info.get("position_source")
-    return src if solver_source == "given" and src else solver_source
 
 
 def _check_master_position(run: GnssRun):
@@ -199,7 +194,7 @@ def gnss_init(run: GnssRun, *, options: dict | None = None, progress=None) -> di
             "states": res["states"],
             "sigma": dict(zip(names, sol["sigma_enu_m"])),
             "nominal_ecef_m": res["rover_apriori_ecef_m"],
-            "nominal_source": _nominal_source(run, r, res["rover_apriori_source"]),
+            "nominal_source": res["rover_apriori_source"],
             "rover_ecef_m": res["rover_ecef_m"],
             **({"rover_troposphere_ecef_m": res["rover_troposphere_ecef_m"]} if "rover_troposphere_ecef_m" in res else {}),
             "baseline_enu_from_master_m": res["baseline_enu_from_master_m"],

@@ -187,7 +187,8 @@ weights 1/σ²; the slope's σ is from those weights (χ²/dof ≫ 1: the scatte
 {'<p><img src="trends.png" alt="mode trends"></p>' if has_png else ''}""" if trend_rows or not positions else
                  "<p>No session identified modes (GNSS displacement sessions: their positions' trends are below).</p>")
     pos_part = "" if not positions else f"""<h2>Position trends</h2>
-<p>Weighted least-squares line through each GNSS rover's static position (its session's INIT and STATES) against
+<p>Weighted least-squares line through each GNSS rover's static position (its session's INIT and STATES), about the
+nominal position of the rover's first session (a session of a run with another nominal is moved there), against
 the session time, weights 1/σ²; the slope's σ is from those weights. χ²/dof ≫ 1: the sessions scatter more than their
 σ say — the σ of a static solution does not hold errors correlated over minutes (multipath), which on a low-cost
 receiver can move a session's position by centimetres.</p>
@@ -203,7 +204,7 @@ padding:3px 8px;font-size:13px}}pre{{white-space:pre-wrap;margin:0}}</style></he
 Numbers in <a href="batch.json">batch.json</a>.</p>
 <h2>Sessions</h2>
 <table>{_row(['session', 'time (UTC)', 'status', 'task time (s)', 'integers fixed', 'NIS/dof', 'noise σ (mm)',
-              'modes identified (Hz ± 1σ)', 'static position (mm ± 1σ)', 'error'], 'th')}{''.join(rows)}</table>
+              'modes identified (Hz ± 1σ)', 'static E/N/U from the nominal (mm ± 1σ)', 'error'], 'th')}{''.join(rows)}</table>
 <h2>Mode trends</h2>
 {mode_part}
 {pos_part}{f'<p>{e(why)}</p>' if why else ''}

@@ -26,7 +26,7 @@ from cdgps_cli.config.options import STATES_CHUNK_EPOCHS
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.atomic import output_set, write_bytes_atomic
-from cdgps_cli.io.provenance import provenance_rows, report_provenance
+from cdgps_cli.io.provenance import provenance_rows, report_provenance, value_text
 from cdgps_cli.report import run_figures as figs
 from cdgps_cli.report.envelope import DEFAULT_BINS
 from cdgps_cli.report.mac import mac_matrix
@@ -207,20 +207,8 @@ def _stage_rows(states, run) -> list[list[str]]:
     rows.append(["STATES.mcap", f"{meta.get('created_by', 'cdgps estimate')} (cdgps {meta.get('cdgps_version', '?')}) "
                  f"on {meta.get('run', '?')}, smoothed {meta.get('smoothed', '?')}, covariance "
                  f"{meta.get('covariance', '?')}; options: "
-                 + "; ".join(f"{k} = {_value_text(v)}" for k, v in sorted(eo.items()) if v is not None)])
+                 + "; ".join(f"{k} = {value_text(v)}" for k, v in sorted(eo.items()) if v is not None)])
     return rows
-
-
-def _value_text(v) -> str:
-    """An option's value as the provenance table says it: lists joined by commas, a table as ``key value`` pairs (a
-    wavelength of None: a GLONASS signal's, one per satellite), numbers to 6 significant digits."""
-    if isinstance(v, dict):
-        return ", ".join(f"{k} {_value_text(x) if x is not None else 'per satellite'}" for k, x in v.items())
-    if isinstance(v, (list, tuple)):
-        return ",".join(_value_text(x) for x in v)
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    return str(v)
 
 
 def _init_window_text(w) -> str:

@@ -364,8 +364,14 @@ def test_the_worker_plugin_applies_the_settings_on_a_cluster_started_without_the
     assert not after["profile_callback"]
     assert after["settings"]["malloc"].startswith("MALLOC_TRIM_THRESHOLD_=65536 overridden: mmap threshold 33554432")
     assert after["settings"]["blas_env"]["OMP_NUM_THREADS"] == "1"
-    # Ctrl-C is the batch process's: a worker's own KeyboardInterrupt printed its task's traceback (a sweep)
-    assert after["settings"]["sigint"] == "ignored (the batch process stops the worker)"
+    # a cluster the batch did not start keeps its own Ctrl-C handling (a review: a user's `dask worker` could no
+    # longer be stopped by SIGINT); on its own cluster the batch makes its workers leave Ctrl-C to it
+    assert after["settings"]["sigint"].startswith("kept (a cluster the batch did not start")
+    (sig,) = plain.run(lambda: __import__("signal").getsignal(__import__("signal").SIGINT) is __import__("signal").SIG_IGN).values()
+    assert not sig
+    BD.apply_worker_settings(plain, own_cluster=True)
+    (own,) = plain.run(_state).values()
+    assert own["settings"]["sigint"] == "ignored (the batch process stops the worker)"
     (sig,) = plain.run(lambda: __import__("signal").getsignal(__import__("signal").SIGINT) is __import__("signal").SIG_IGN).values()
     assert sig
     # a worker that joins later gets them too

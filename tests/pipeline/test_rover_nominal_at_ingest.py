@@ -36,7 +36,7 @@ def run(tmp_path_factory):
     _without_header_position(d / "rover.rnx")
     r = run_cli("ingest", "--config", d / "config.toml", "-o", d / "run.mcap")
     assert r.exit_code == 0, r.output
-    assert "its pseudorange single-point position of its first epochs" in r.output
+    assert "the pseudorange single-point position of its first epochs" in r.output and "is its nominal position" in r.output
     return d
 
 
@@ -81,3 +81,19 @@ def test_a_given_position_is_kept(run, tmp_path):
     rx = read_gnss_run(tmp_path / "run.mcap").receivers["rover"]
     assert rx.info["position_source"] == "config position_ecef_m"
     assert rx.info["position_ecef_m"] == [-3976219.0, 3382372.0, 3652513.0]
+
+
+def test_when_the_first_epochs_place_nothing_the_windows_are_said_to_differ(run, tmp_path, monkeypatch):
+    """No single-point position from the first epochs (a cold-start log: too few satellites with an ephemeris): the
+    windows then each place the rover themselves, metres apart (a review), and the warning says so and how to fix it
+    (position_ecef_m); the RUN holds no position for it."""
+    from cdgps_cli.core.errors import CdgpsError
+
+    def none(*a, **k):
+        raise CdgpsError("no solution")
+
+    monkeypatch.setattr(gnss_ingest, "_raw_single_point", none)
+    s = gnss_ingest.ingest_gnss(load_gnss_config(run / "config.toml"), tmp_path / "run.mcap")
+    (w,) = [x for x in s["warnings"] if x.startswith("rover: no nominal position")]
+    assert "windows of this run" in w and "refer to points metres apart" in w and "position_ecef_m" in w
+    assert read_gnss_run(tmp_path / "run.mcap").receivers["rover"].info["position_source"] is None

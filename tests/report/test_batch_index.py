@@ -76,3 +76,31 @@ def test_gnss_sessions_get_their_positions_and_a_position_trend(tmp_path):
     assert "No session identified modes" in page and "<h2>Position trends</h2>" in page
     assert "<td>+2.00 ± 0.10</td>" in page                # σ 0.3 mm / √Σ(t − t̄)² = 0.101 mm/day
     assert (tmp_path / "positions.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and not (tmp_path / "trends.png").exists()
+
+
+def test_position_trends_take_every_session_to_one_origin():
+    """Sessions of runs with other nominal positions (a rover placed at each run's own first epochs; RINEX headers
+    that differ): their E/N/U are about different points, and a review's three runs of one antenna gave slopes of
+    metres a day.  Each session is taken to the first session's nominal: one static point gives one value, and a
+    point 5 mm east of it 5 mm more east, whatever the runs' nominals."""
+    import numpy as np
+
+    from cdgps_cli.model.gps.orbits import ecef_to_geodetic, enu_matrix
+    from cdgps_cli.pipeline.batch import position_trends
+
+    truth = np.array([-3976219.5, 3382372.6, 3652513.0])
+    R = enu_matrix(*ecef_to_geodetic(truth)[:2])
+    nominals = [truth + np.array([3.0, -2.0, 4.0]), truth + np.array([-6.0, 1.0, 2.5]), truth + np.array([0.5, 5.0, -1.0])]
+    east_mm = [0.0, 0.0, 5.0]
+    sessions = []
+    for i, (nom, e_mm) in enumerate(zip(nominals, east_mm)):
+        x = truth + R[0] * e_mm * 1e-3
+        enu = enu_matrix(*ecef_to_geodetic(nom)[:2]) @ (x - nom)
+        sessions.append({"session": f"s{i}", "time": f"2026-11-0{i + 1}T00:00:00Z", "rovers": {"rover": {
+            "static_enu_m": dict(zip(("rover_e", "rover_n", "rover_u"), enu.tolist())),
+            "static_sigma_m": {"rover_e": 0.001, "rover_n": 0.001, "rover_u": 0.002}, "nominal_ecef_m": nom.tolist()}}})
+    by = {t["coordinate"]: t for t in position_trends(sessions)}
+    e = [p["value_m"] for p in by["rover_e"]["sessions"]]
+    n = [p["value_m"] for p in by["rover_n"]["sessions"]]
+    assert abs(e[1] - e[0]) < 1e-9 and abs(e[2] - e[0] - 0.005) < 1e-9 and max(n) - min(n) < 1e-9
+    assert by["rover_e"]["origin_ecef_m"] == nominals[0].tolist()

@@ -429,9 +429,7 @@ def test_a_static_gnss_page_shows_no_none_and_no_rounding_noise(tmp_path):
 def test_tables_in_the_provenance_read_as_pairs():
     """The STATES row printed a Python dict, ``{'G:L1': 0.19029367279836487, 'R:G1': None}`` (a sweep of a GPS +
     GLONASS pair): a table is written as pairs, a GLONASS signal's wavelength as one per satellite."""
-    from cdgps_cli.io.provenance import _opt_text
-    from cdgps_cli.report.run_report import _value_text
+    from cdgps_cli.io.provenance import _opt_text, value_text
     v = {"G:L1": 0.19029367279836487, "R:G1": None}
-    assert _value_text(v) == "G:L1 0.190294, R:G1 per satellite"
-    assert _opt_text(v) == "G:L1 0.19029367279836487, R:G1 none"
-    assert _value_text(["G:L1", "R:G1"]) == "G:L1,R:G1" and _value_text(3.0) == "3"
+    assert value_text(v) == _opt_text(v) == "G:L1 0.190294, R:G1 per satellite"      # one wording in both rows
+    assert value_text(["G:L1", "R:G1"]) == "G:L1,R:G1" and value_text(3.0) == "3"
