@@ -184,7 +184,8 @@ def provenance_rows(p: dict) -> list[list[str]]:
                      f"RUN {e['run']} sha256 {e['run_sha256']}; INIT sha256 {e['init_sha256']}; config {e['config']} "
                      f"sha256 {e['config_sha256']}; cdgps {e['cdgps_version']}"])
         if isinstance(e["options"], dict):
-            rows.append(["estimate options", "; ".join(f"{k} = {_opt_text(v)}" for k, v in sorted(e["options"].items()))])
+            rows.append(["estimate options", "; ".join(f"{k} = {_opt_text(v)}" for k, v in sorted(e["options"].items())
+                                                       if v is not None)])     # (not set, or not of this model)
     if p.get("gyro_run_ingested_from"):
         rows.append(["gyro RUN ingested from", "; ".join(f"{v['file']} sha256 {v['sha256']}"
                                                         for v in p["gyro_run_ingested_from"].values())])
