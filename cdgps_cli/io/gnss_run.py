@@ -50,7 +50,7 @@ from cdgps_cli.config.structure import GnssConfig, gnss_config_toml, parse_gnss_
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.timescales import unix_ns_list
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_schema, message_schema, read_mcap
-from cdgps_cli.io.run import INGEST_METADATA, contents_kind, ingest_metadata, input_keys, run_kind
+from cdgps_cli.io.run import INGEST_METADATA, contents_kind, epoch_gaps, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.constants import MAX_EPHEMERIS_AGE_S
 from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
@@ -1086,11 +1086,12 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
     t = tab["time_gps_s"].to_numpy()
     ph = np.isfinite(tab["phase_cycles"].to_numpy(dtype=float))
     tu = distinct_times(t)
+    interval = sampling_interval_s(tu)
     return {"name": n, "format": rx.format, "file": rx.file, "epochs": int(tu.size),
             "first": gps_time_str(float(tu[0])), "last": gps_time_str(float(tu[-1])),
             "first_gps_s": float(tu[0]), "last_gps_s": float(tu[-1]),
             # the interval it samples at (a base logging with gaps: 1 s, not its median spacing of 3 s), as the solvers
-            "interval_s": sampling_interval_s(tu), "gaps": epoch_gaps(tu, sampling_interval_s(tu)),
+            "interval_s": interval, "gaps": gaps_summary(tu, interval),
             "satellites": int(tab["sat"].nunique()),
             "rows": int(len(t)), "phase_rows": int(ph.sum()),
             "slips": int(sum(v["slips"] for v in lock.values())),
@@ -1099,16 +1100,14 @@ def _receiver_summary(n, rx: GnssReceiver, lock: dict, pos) -> dict:
             "position_source": pos[0], "position_ecef_m": pos[1], **_signal_summary(rx, tab)}
 
 
-def epoch_gaps(times_s: np.ndarray, interval_s: float | None) -> dict | None:
-    """The gaps in a receiver's epochs (``times_s``: its distinct epoch times, s) at its sampling interval: spacings
-    over 1.5 intervals, with the epochs they miss (a spacing of k intervals misses k − 1) and the longest, s; None
-    with fewer than two epochs."""
+def gaps_summary(times_s: np.ndarray, interval_s: float | None) -> dict | None:
+    """A GNSS receiver's epoch gaps summed up: how many (:func:`~cdgps_cli.io.run.epoch_gaps`' rule, a structure
+    run's: spacings over 1.5 intervals), the epochs they miss and the longest, s; None with fewer than two epochs."""
     if interval_s is None or not interval_s > 0 or times_s.size < 2:
         return None
-    d = np.diff(np.asarray(times_s, dtype=np.float64))
-    big = d > 1.5 * interval_s
-    return {"count": int(big.sum()), "missing_epochs": int(np.sum(np.rint(d[big] / interval_s) - 1)),
-            "longest_s": float(d[big].max()) if big.any() else 0.0}
+    gaps = epoch_gaps(times_s, interval_s)
+    return {"count": len(gaps), "missing_epochs": int(sum(g["missing_epochs"] for g in gaps)),
+            "longest_s": max((g["end_s"] - g["start_s"] for g in gaps), default=0.0)}
 
 
 def _signal_summary(rx: GnssReceiver, counted) -> dict:

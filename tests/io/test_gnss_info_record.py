@@ -123,11 +123,11 @@ def test_epoch_gaps_closed_cases():
     each receiver's gaps are counted (spacings over 1.5 intervals), with the epochs they miss and the longest."""
     import numpy as np
 
-    from cdgps_cli.io.gnss_run import epoch_gaps
+    from cdgps_cli.io.gnss_run import gaps_summary
     t = np.array([0.0, 1.0, 2.0, 5.0, 6.0, 18.0, 19.0])
-    assert epoch_gaps(t, 1.0) == {"count": 2, "missing_epochs": 2 + 11, "longest_s": 12.0}
-    assert epoch_gaps(np.arange(10.0), 1.0) == {"count": 0, "missing_epochs": 0, "longest_s": 0.0}
-    assert epoch_gaps(np.array([3.0]), None) is None
+    assert gaps_summary(t, 1.0) == {"count": 2, "missing_epochs": 2 + 11, "longest_s": 12.0}
+    assert gaps_summary(np.arange(10.0), 1.0) == {"count": 0, "missing_epochs": 0, "longest_s": 0.0}
+    assert gaps_summary(np.array([3.0]), None) is None
 
 
 def test_info_counts_the_gaps_of_a_receiver(tmp_path):
