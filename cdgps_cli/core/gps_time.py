@@ -176,3 +176,17 @@ def sampling_interval_s(t_s) -> float:
     if np.mean(np.abs(k - np.round(k)) <= 0.05) >= SAMPLING_MULTIPLES_SHARE:
         return step
     return nominal_interval_s(u)
+
+
+def time_span(t_s) -> tuple[float, float] | None:
+    """(first, last) of the times ``t_s`` (s), or None when there is none."""
+    t = np.asarray(t_s, dtype=np.float64)
+    return (float(t.min()), float(t.max())) if t.size else None
+
+
+def spans_meet(a: tuple | None, b: tuple | None, max_age_s: float) -> bool:
+    """Whether two records' spans (:func:`time_span`) meet within ``max_age_s`` (a base epoch that old still pairs
+    with a rover epoch); a record without epochs meets none."""
+    if a is None or b is None:
+        return False
+    return a[0] <= b[1] + max_age_s and b[0] <= a[1] + max_age_s

@@ -73,7 +73,7 @@ from cdgps_cli.model.gps.positioning import (
     spp_spread,
     tropo_hydrostatic_m,
 )
-from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.gps_time import gps_time_str, spans_meet, time_span
 from cdgps_cli.measurement.dd_signals import glonass_code_factor
 from cdgps_cli.measurement.epoch_fit import full_rank
 from cdgps_cli.measurement.epoch_pairing import age_variance_m2, nearest_tags, pair_epochs, rows_for_pairs, NO_DD, without_dd
@@ -287,12 +287,8 @@ def _where(st: Station) -> str:
 def _spans_meet(master: Station, rover: Station, max_age_s: float) -> bool:
     """Whether the two receivers' records meet in time (within ``max_age_s``): a pair that does not is refused for
     having no common epoch (the preparation's words), whatever its length."""
-    spans = [(float(t.min()), float(t.max())) if t.size else None
-             for t in (st.obs["time_gps_s"].to_numpy(dtype=np.float64) for st in (master, rover))]
-    if None in spans:
-        return False
-    (a0, a1), (b0, b1) = spans
-    return a0 <= b1 + max_age_s and b0 <= a1 + max_age_s
+    return spans_meet(*(time_span(st.obs["time_gps_s"].to_numpy(dtype=np.float64)) for st in (master, rover)),
+                      max_age_s)
 
 
 def _span(t) -> str:

@@ -52,7 +52,7 @@ from cdgps_cli.core.timescales import unix_ns_list
 from cdgps_cli.io.mcap import CONFIG_ATTACHMENT, VALID_SUFFIX, McapOut, array_schema, message_schema, read_mcap
 from cdgps_cli.io.run import INGEST_METADATA, contents_kind, epoch_gaps, ingest_metadata, input_keys, run_kind
 from cdgps_cli.core.constants import MAX_EPHEMERIS_AGE_S
-from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.gps_time import gps_time_str, spans_meet, time_span
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
@@ -1561,14 +1561,13 @@ def _disjoint_spans_notes(master: str, receivers: dict, paths: dict, comments: l
     from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS  # noqa: PLC0415
 
     def span(n):
-        t = receivers[n].raw["time_gps_s"].to_numpy(dtype=np.float64) if len(receivers[n].raw) else np.zeros(0)
-        return (float(t.min()), float(t.max())) if t.size and not is_pattern(str(paths[n])) else None
+        return None if is_pattern(str(paths[n])) else time_span(receivers[n].raw["time_gps_s"].to_numpy(dtype=np.float64))
 
     age = float(EPOCH_PAIRING_DEFAULTS["max_age_s"])
     m = span(master)
     for n in receivers:
         r = span(n) if n != master else None
-        if m is None or r is None or (r[0] <= m[1] + age and r[1] >= m[0] - age):
+        if m is None or r is None or spans_meet(m, r, age):
             continue
         said = (f"{paths[n]} ({n}) spans {gps_time_str(r[0])} – {gps_time_str(r[1])} and the master {paths[master]} "
                 f"{gps_time_str(m[0])} – {gps_time_str(m[1])}: no common epochs; 'cdgps ingest' refuses the pair")

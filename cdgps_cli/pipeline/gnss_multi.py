@@ -24,7 +24,7 @@ from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, default_direction,
                                       HEADER_POSITION_TOL_M, MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS,
                                       ORIGIN_MOVE_SIGMAS, ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s
+from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s, spans_meet, time_span
 from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             reported_positions, solve_rtk, troposphere_at_epochs)
@@ -175,14 +175,12 @@ def _refuse_disjoint_spans(base: pd.DataFrame, rover: pd.DataFrame, max_age_s: f
     """CdgpsError naming both spans when no rover epoch can have a base epoch within ``max_age_s`` (logs of two days):
     said before the rover is placed, whose single-point position with the other day's ephemerides failed first with a
     message about satellites (a sweep of two u-blox logs seven years apart)."""
-    tb, tr = (df["time_gps_s"].to_numpy(dtype=np.float64) for df in (base, rover))
-    if not (tb.size and tr.size):
-        return
-    if tr.min() > tb.max() + max_age_s or tr.max() < tb.min() - max_age_s:
-        raise CdgpsError(f"no common epochs: {base_path} (base) spans {gps_time_str(float(tb.min()))} – "
-                         f"{gps_time_str(float(tb.max()))} and {rover_path} (rover) {gps_time_str(float(tr.min()))} – "
-                         f"{gps_time_str(float(tr.max()))}: no rover epoch has a base epoch within {max_age_s:g} s "
-                         f"(max_age_s)")
+    sb, sr = (time_span(df["time_gps_s"].to_numpy(dtype=np.float64)) for df in (base, rover))
+    if sb is None or sr is None or spans_meet(sb, sr, max_age_s):
+        return                                  # (a file without epochs: its own reader's words say so)
+    raise CdgpsError(f"no common epochs: {base_path} (base) spans {gps_time_str(sb[0])} – {gps_time_str(sb[1])} and "
+                     f"{rover_path} (rover) {gps_time_str(sr[0])} – {gps_time_str(sr[1])}: no rover epoch has a base "
+                     f"epoch within {max_age_s:g} s (max_age_s)")
 
 
 def _refuse_empty(path, who: str) -> None:

@@ -37,3 +37,12 @@ def test_an_hours_rows_at_10_hz():
     t = np.repeat(1.4e9 + np.arange(36_000) * 0.1, 10)          # (an hour at 10 Hz, 10 rows an epoch)
     assert _same(distinct_times(t), np.unique(t)) and nominal_interval_s(t) == 0.1
     assert math.isnan(nominal_interval_s([5.0, 5.0]))
+
+
+def test_spans_meet_within_the_base_age():
+    """The one rule `rtk`, `config` and the baseline use for "no common epochs" (each had its own)."""
+    from cdgps_cli.core.gps_time import spans_meet, time_span
+    assert time_span([]) is None and time_span([5.0, 1.0, 3.0]) == (1.0, 5.0)
+    assert spans_meet((0.0, 10.0), (40.0, 50.0), 30.0) and spans_meet((40.0, 50.0), (0.0, 10.0), 30.0)
+    assert not spans_meet((0.0, 10.0), (40.5, 50.0), 30.0) and not spans_meet((40.5, 50.0), (0.0, 10.0), 30.0)
+    assert not spans_meet(None, (0.0, 1.0), 30.0)
