@@ -870,8 +870,7 @@ def mode_trends(entries: list) -> list:
     """Per mode: frequency and damping of every session that identified it, in time order, with
     weighted linear trends over time (days) when the sessions carry times."""
     by_mode = {}
-    order = sorted(range(len(entries)), key=lambda i: (entries[i]["time"] is None, entries[i]["time"] or "", i))
-    for i in order:
+    for i in _time_order(entries):
         e = entries[i]
         for m in e.get("modes", []):
             by_mode.setdefault(m["mode"], {"mode": m["mode"], "model_hz": m["model_hz"], "sessions": []})
@@ -880,15 +879,25 @@ def mode_trends(entries: list) -> list:
                  "damping": m["damping"], "damping_sigma": m["damping_sigma"], "seen": m["seen"]})
     out = []
     for mode in sorted(by_mode.values(), key=lambda d: (not math.isfinite(_num(d["model_hz"])), _num(d["model_hz"]))):
-        pts = [p for p in mode["sessions"] if p["time"] is not None]
-        t0 = _days(pts[0]["time"]) if pts else 0.0
-        t = [_days(p["time"]) - t0 for p in pts]
         for q, sq, name in (("gps_hz", "gps_hz_sigma", "frequency_trend_hz"), ("damping", "damping_sigma", "damping_trend")):
-            mode[name], mode[name + "_note"] = trend_fit(t, [_num(p[q]) for p in pts], [_num(p[sq]) for p in pts])
-            if not pts:
-                mode[name + "_note"] = f"{NO_SPREAD}: no session of this mode has a time"
+            mode[name], mode[name + "_note"] = _trend_over_sessions(mode["sessions"], q, sq, "mode")
         out.append(mode)
     return out
+
+
+def _time_order(entries: list) -> list:
+    """The sessions' indexes in time order (those without a time last, in manifest order)."""
+    return sorted(range(len(entries)), key=lambda i: (entries[i]["time"] is None, entries[i]["time"] or "", i))
+
+
+def _trend_over_sessions(points: list, value_key: str, sigma_key: str, what: str) -> tuple:
+    """:func:`trend_fit` of ``points`` (sessions' dicts with ``time``) against their time in days from the first; the
+    note of a series without any time."""
+    pts = [p for p in points if p["time"] is not None]
+    t0 = _days(pts[0]["time"]) if pts else 0.0
+    fit, note = trend_fit([_days(p["time"]) - t0 for p in pts], [_num(p[value_key]) for p in pts],
+                          [_num(p[sigma_key]) for p in pts])
+    return fit, (note if pts else f"{NO_SPREAD}: no session of this {what} has a time")
 
 
 def position_trends(entries: list) -> list:
@@ -900,8 +909,7 @@ def position_trends(entries: list) -> list:
     three runs of one antenna, each placed at its own first epochs, gave slopes of metres a day), and each point
     says the origin it is about (``origin_ecef_m``)."""
     by, origin = {}, {}
-    order = sorted(range(len(entries)), key=lambda i: (entries[i]["time"] is None, entries[i]["time"] or "", i))
-    for i in order:
+    for i in _time_order(entries):
         e = entries[i]
         for r, v in (e.get("rovers") or {}).items():
             sig = v.get("static_sigma_m") or {}
@@ -913,12 +921,7 @@ def position_trends(entries: list) -> list:
     out = []
     for c in sorted(by):
         tr = by[c]
-        pts = [p for p in tr["sessions"] if p["time"] is not None]
-        t0 = _days(pts[0]["time"]) if pts else 0.0
-        tr["trend_m"], tr["trend_m_note"] = trend_fit([_days(p["time"]) - t0 for p in pts],
-                                                      [_num(p["value_m"]) for p in pts], [_num(p["sigma_m"]) for p in pts])
-        if not pts:
-            tr["trend_m_note"] = f"{NO_SPREAD}: no session of this rover has a time"
+        tr["trend_m"], tr["trend_m_note"] = _trend_over_sessions(tr["sessions"], "value_m", "sigma_m", "rover")
         out.append(tr)
     return out
 
