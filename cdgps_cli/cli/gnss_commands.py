@@ -9,6 +9,7 @@ import click
 
 from cdgps_cli.config.options import GNSS_DEFAULTS, X_AXIS_AZIMUTH_DEG
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _emit_json, main, _parse_named,
                                _parse_antenna_types,
                                _parse_named_files, _write_json_atomic, _write_text_atomic)
@@ -330,12 +331,12 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="Rover observations: RINEX, or a u-blox log (RXM-RAWX); repeated, or a quoted glob pattern, as "
                    "--base.")
 @click.option("--nav", "nav_files", multiple=True, type=click.Path(dir_okay=False),
-              help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / GLONASS ephemerides (repeatable); "
+              help="RINEX navigation file(s) with the GPS / Galileo / BeiDou / QZSS / GLONASS ephemerides (repeatable); "
                    "without it, the u-blox logs' RXM-SFRBX ephemerides.")
 @click.option("--signals", default="auto", show_default=True,
-              help="Comma-separated signals (G:L1, G:L2, G:L5, E:E1, E:E5a, E:E5b, C:B1I, C:B2I, C:B2a, R:G1, R:G2; "
-                   "GLONASS stays float unless --glonass-fix), or 'auto': every one both files hold whose system has "
-                   "ephemerides in --nav.")
+              help=f"Comma-separated signals ({', '.join(SIGNALS)}; GLONASS stays float unless --glonass-fix), or "
+                   "'auto': every GPS, Galileo, BeiDou and GLONASS signal both files hold whose system has ephemerides "
+                   "in --nav (QZSS only when named).")
 @click.option("--mode", type=click.Choice(["kinematic", "constant-velocity", "static"]), default="kinematic", show_default=True,
               help="kinematic: random-walk rover position, a solution per epoch; constant-velocity: position and "
                    "velocity, the velocity a random walk (white acceleration), written out too (ENU m/s and σ; "

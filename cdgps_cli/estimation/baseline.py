@@ -1707,6 +1707,8 @@ def _reference_satellites(d: _Data, refs_ph: list) -> tuple[list, int]:
     ref_list, n_changes = [], 0
     for k, ref_ph in enumerate(refs_ph):
         ref_ep = np.flatnonzero(ref_ph >= 0)
+        if not ref_ep.size:                     # a group never differenced (one satellite at a time): no reference
+            continue
         ref_sat = d.sat[ref_ph[ref_ep]]
         starts = np.flatnonzero(np.r_[True, np.diff(ref_sat) != 0])
         sig = {} if getattr(d, "group", None) is None else {"signal": d.group_names[k]}

@@ -1454,7 +1454,7 @@ _NAV_VALUES = NAV_COLUMNS[2:31]  # the 29 values after toc, in file order
 # clock and orbit terms, week, health and TGD must be present; codes on L2, L2 P flag, IODC,
 # transmission time and fit interval may be blank in some writers' files
 _NAV_REQUIRED = tuple(range(20)) + (21, 24, 25)
-NAV_KEPLER_SYSTEMS = ("G", "E", "C")
+NAV_KEPLER_SYSTEMS = ("G", "E", "C", "J")
 """Systems whose RINEX 3 Kepler ephemeris records :func:`read_rinex_nav` decodes (GPS-form
 elements; Galileo: IODnav in ``iode``, data sources in ``codes_l2``, BGD E5a/E1 in ``tgd_s``;
 BeiDou: see :func:`read_rinex_nav`)."""
@@ -1463,8 +1463,15 @@ NAV_SYSTEMS = NAV_KEPLER_SYSTEMS + ("R",)
 _NAV_LINES = {"G": 8, "E": 8, "C": 8, "J": 8, "I": 8, "R": 4, "S": 4}
 
 
+def qzss_fit_interval_h(flag) -> np.ndarray:
+    """A QZSS record's fit interval, h, from its fit-interval flag (RINEX 3 writes QZSS's flag where GPS has
+    hours): 0 → 2 h; 1 ("more than 2 hours", IS-QZSS-PNT) → NaN, not stated."""
+    f = np.asarray(flag, dtype=np.float64)
+    return np.where(f == 0, 2.0, np.nan)
+
+
 def _kepler_table(records: list, p, compressed: bool) -> pd.DataFrame:
-    """The Kepler records (GPS, Galileo, BeiDou) as a :data:`NAV_COLUMNS` table: weeks unwrapped,
+    """The Kepler records (GPS, Galileo, BeiDou, QZSS) as a :data:`NAV_COLUMNS` table: weeks unwrapped,
     toe and transmission time in GPS seconds (BeiDou: from BDT), impossible orbits refused."""
     df = pd.DataFrame(records, columns=["sat", "toc_gps_s", *_NAV_VALUES, "line"])
     if df.empty:
@@ -1473,6 +1480,8 @@ def _kepler_table(records: list, p, compressed: bool) -> pd.DataFrame:
     # BeiDou: AODC is written where GPS has the fit interval, TGD2 where GPS has IODC
     df.loc[bds, "iodc"] = df.loc[bds, "fit_interval_h"]
     df.loc[bds, "fit_interval_h"] = np.nan
+    qzss = (df["sat"].str[0] == "J").to_numpy()
+    df.loc[qzss, "fit_interval_h"] = qzss_fit_interval_h(df.loc[qzss, "fit_interval_h"].to_numpy())
     week_off = np.where(bds, BDT_WEEK_OFFSET, 0)
     sec_off = np.where(bds, GPS_MINUS_BDT_S, 0.0)
     week = df["week"].to_numpy(dtype=float)

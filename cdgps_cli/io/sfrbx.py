@@ -46,7 +46,7 @@ import pandas as pd
 
 from cdgps_cli.core.gps_time import bdt_to_gps_s
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
-from cdgps_cli.io.rinex import _frame
+from cdgps_cli.io.rinex import _frame, qzss_fit_interval_h
 from cdgps_cli.io.sfrbx_glonass import glonass_frame
 
 __all__ = ["GPS_PI", "URA_M", "BDS_PREAMBLE", "bch15_syndrome", "beidou_words_from_sfrbx", "decode_beidou_d1",
@@ -258,7 +258,8 @@ def decode_gps_subframes(sf1: list[int], sf2: list[int], sf3: list[int], sat: st
         "tgd_s": b1.s(160, 8) * 2.0**-31,
         "iodc": iodc,
         "transmit_sow_s": tow_sf1,
-        "fit_interval_h": 4.0 if b2.u(232, 1) == 0 else 6.0,
+        "fit_interval_h": (float(qzss_fit_interval_h(b2.u(232, 1))) if sat[:1] == "J"
+                           else 4.0 if b2.u(232, 1) == 0 else 6.0),
         "line": -1,
     }
     return _dated(rec, week, tow_sf1, toc, toe)
@@ -696,6 +697,11 @@ _INAV_SIGNAL_BYTE = np.isin(np.arange(256), sorted(_INAV_SIGNALS))
 """RXM-SFRBX sigIds of Galileo I/NAV frames: E1-B (1) and E5b-I (5) on u-blox 9 and later, 0 on u-blox 8
 (whose reserved byte is 0 and which tracks E1 only); E5a F/NAV and E6 C/NAV frames are counted apart."""
 _SFRBX = (0x02, 0x13)
+_LNAV_GNSS = {0: "G", 5: "J"}
+"""RXM-SFRBX gnssIds whose L1 C/A frames (sigId 0) are LNAV subframes, with their satellites' RINEX letter: GPS and
+QZSS (IS-QZSS-PNT: the GPS subframe layout, parity and week; u-blox svId 1–10 is the RINEX ``Jnn``)."""
+_LNAV_COUNTERS = {"G": ("gps_subframes", "gps_cnav_frames"), "J": ("qzss_subframes", "qzss_cnav_frames")}
+"""The counters of :func:`sfrbx_ephemerides` of each LNAV system: (subframes 1–3 decoded, frames of other signals)."""
 _SFRB = (0x02, 0x11)
 
 
@@ -728,16 +734,17 @@ def _beidou_bch_passes(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _checked_words(frames: list) -> dict:
-    """{frame index: words} (``frames``: (index, class, id, frame bytes)) of the RXM-SFRBX GPS L1 C/A and BeiDou D1/D2 subframes of ``frames``
+    """{frame index: words} (``frames``: (index, class, id, frame bytes)) of the RXM-SFRBX GPS and QZSS L1 C/A and BeiDou D1/D2 subframes of ``frames``
     that pass their checks as most do (GPS parity in the u-blox form, BeiDou BCH without
     de-interleaving), checked all at once: what :func:`gps_words_from_sfrbx` /
     :func:`beidou_words_from_sfrbx` return for them.  The others are left to those functions."""
-    at = {0: [], 3: []}
+    at: dict = {0: [], 3: []}
     rows: dict = {0: [], 3: []}
     for i, cls, mid, fr in frames:
-        if (cls, mid) == _SFRBX and len(fr) == 56 and fr[10] == 10 and (fr[6] == 3 or (fr[6] == 0 and fr[8] == 0)):
-            at[fr[6]].append(i)
-            rows[fr[6]].append(fr[14:54])
+        if (cls, mid) == _SFRBX and len(fr) == 56 and fr[10] == 10 and (fr[6] == 3 or (fr[6] in _LNAV_GNSS and fr[8] == 0)):
+            g = 0 if fr[6] in _LNAV_GNSS else 3
+            at[g].append(i)
+            rows[g].append(fr[14:54])
     out = {}
     for g in (0, 3):
         if not at[g]:
@@ -770,7 +777,7 @@ def _inav_pages(frames: list) -> dict:
 def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: int | None, glonass: bool,
                    stats: dict) -> np.ndarray:
     """Which RXM-SFRBX / RXM-SFRB frames (``x[off:end]``, log order) :func:`sfrbx_ephemerides` must look at
-    one by one, in order; the others (wrong length, F/NAV and C/NAV, BeiDou B1C/B2a/B2b, GPS CNAV, systems
+    one by one, in order; the others (wrong length, F/NAV and C/NAV, BeiDou B1C/B2a/B2b, GPS and QZSS CNAV, systems
     not decoded) only count, and are counted here into ``stats`` from their header bytes, all at once, as
     the frame-by-frame walk would count them."""
     n_pl = end - off - 8
@@ -784,11 +791,12 @@ def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: in
     gal_kept = valid & (gnss == 2) & ~gal_other & (week_ref is not None)
     bds = valid & (gnss == 3)
     glo = valid & (gnss == 6) & glonass
-    other = valid & ~gal_other & ~gal_kept & ~bds & ~glo & (gnss != 0)
-    gps = valid & (gnss == 0) & (nw == 10)
+    other = valid & ~gal_other & ~gal_kept & ~bds & ~glo & (gnss != 0) & (gnss != 5)
+    gps = valid & ((gnss == 0) | (gnss == 5)) & (nw == 10)
     stats["galileo_other_frames"] += int(gal_other.sum())
     stats["beidou_cnav_frames"] += int((bds & (nw != 10)).sum())
-    stats["gps_cnav_frames"] += int((gps & (sig != 0)).sum())
+    stats["gps_cnav_frames"] += int((gps & (gnss == 0) & (sig != 0)).sum())
+    stats["qzss_cnav_frames"] += int((gps & (gnss == 5) & (sig != 0)).sum())
     if other.any():
         codes, first, count = np.unique(gnss[other], return_index=True, return_counts=True)
         for k in np.argsort(first, kind="stable").tolist():       # in order of first appearance
@@ -837,7 +845,8 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         ``beidou_bch_failures`` (subframes dropped), ``beidou_d2_frames`` (GEO frames),
         ``beidou_d2_pages`` (D2 subframe-1 pages 1–10 kept),
         ``beidou_cnav_frames`` (not ten words: B1C/B2a/B2b, not decoded), ``gps_cnav_frames``
-        (sigId ≠ 0: L2C/L5, not decoded), ``glonass_strings``, ``glonass_hamming_failures``,
+        (sigId ≠ 0: L2C/L5, not decoded), ``qzss_subframes`` (QZSS LNAV 1–3 decoded: gnssId 5, as GPS),
+        ``qzss_cnav_frames`` (QZSS sigId ≠ 0, not decoded), ``glonass_strings``, ``glonass_hamming_failures``,
         ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
         here), ``ephemerides``.
     """
@@ -867,12 +876,13 @@ def sfrbx_ephemerides_at(data: bytes, off: np.ndarray, end: np.ndarray, week_ref
     recs: dict[tuple, dict] = {}
     glo_recs: dict[tuple, dict] = {}
     latest: dict[str, dict] = {}
-    gps, gal, bds, glo = [], [], [], []
+    gps, qzss, gal, bds, glo = [], [], [], [], []
     for a, b in zip(off, end):                             # kept SFRBX frames are well formed (_stateful_mask)
         f = (a, 2, data[a + 3], data[a:b])
         g = data[a + 6] if f[2] == 0x13 else 0
-        (gps if g == 0 else gal if g == 2 else bds if g == 3 else glo).append(f)
+        (gps if g == 0 else qzss if g == 5 else gal if g == 2 else bds if g == 3 else glo).append(f)
     _gps_frames(gps, _checked_words(gps), week_ref, latest, recs, stats)
+    _gps_frames(qzss, _checked_words(qzss), week_ref, latest, recs, stats, letter="J")
     if gal:
         _galileo_frames(gal, _inav_pages(gal), week_ref, latest, recs, stats)
     checked = _checked_words(bds)
@@ -921,7 +931,7 @@ def _new_stats(glonass: bool) -> dict:
     stats = {"sfrbx_frames": 0, "gps_subframes": 0, "parity_failures": 0, "galileo_words": 0, "galileo_bad_pages": 0,
              "beidou_subframes": 0, "beidou_bch_failures": 0, "beidou_d2_frames": 0, "beidou_d2_pages": 0,
              "beidou_cnav_frames": 0, "galileo_other_frames": 0,
-             "gps_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
+             "gps_cnav_frames": 0, "qzss_subframes": 0, "qzss_cnav_frames": 0, "other_systems": {}, "ephemerides": 0}
     if glonass:
         stats.update({"glonass_strings": 0, "glonass_hamming_failures": 0, "glonass_unknown_slot": 0})
     return stats
@@ -940,9 +950,11 @@ def _gps_words(cls_mid: tuple, pl: bytes, checked: list | None, stats: dict) -> 
     return pl[1], [w & 0xFFFFFF for w in np.frombuffer(pl[2:42], dtype="<u4").tolist()]
 
 
-def _gps_frames(frames: list, checked: dict, week_ref: int | None, latest: dict, recs: dict, stats: dict) -> None:
-    """The GPS subframes (RXM-SFRBX L1 C/A and RXM-SFRB, in log order) into ``recs``: each satellite's
-    latest subframes 1-3 decoded whenever they change (:func:`decode_gps_subframes`)."""
+def _gps_frames(frames: list, checked: dict, week_ref: int | None, latest: dict, recs: dict, stats: dict,
+                letter: str = "G") -> None:
+    """The LNAV subframes of GPS (RXM-SFRBX L1 C/A and RXM-SFRB) or, ``letter`` ``"J"``, of QZSS (RXM-SFRBX L1
+    C/A), in log order, into ``recs``: each satellite's latest subframes 1-3 decoded whenever they change
+    (:func:`decode_gps_subframes`)."""
     decoded: set = set()
     for i, cls, mid, fr in frames:
         sv, words = _gps_words((cls, mid), fr[6:-2], checked.get(i), stats)
@@ -951,8 +963,8 @@ def _gps_frames(frames: list, checked: dict, week_ref: int | None, latest: dict,
         sid = subframe_id(words)
         if sid not in (1, 2, 3) or not 1 <= sv <= 32:
             continue
-        stats["gps_subframes"] += 1
-        sat = f"G{sv:02d}"
+        stats[_LNAV_COUNTERS[letter][0]] += 1
+        sat = f"{letter}{sv:02d}"
         have = latest.setdefault(sat, {})
         have[sid] = words
         if week_ref is None or not all(k in have for k in (1, 2, 3)):

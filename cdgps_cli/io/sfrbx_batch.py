@@ -235,9 +235,10 @@ def _words24_bits(words: np.ndarray) -> np.ndarray:
     return np.unpackbits(b.reshape(len(words), 30), axis=1)
 
 
-def gps_records(x: np.ndarray, off: np.ndarray, week_ref: int | None, stats: dict) -> dict | None:
+def gps_records(x: np.ndarray, off: np.ndarray, week_ref: int | None, stats: dict, letter: str = "G") -> dict | None:
     """The GPS records of the RXM-SFRBX L1 C/A and RXM-SFRB frames starting at ``off`` (log order, as
-    :func:`~cdgps_cli.io.sfrbx._stateful_mask` keeps them), with the walk's counters; None: no record."""
+    :func:`~cdgps_cli.io.sfrbx._stateful_mask` keeps them) — or, ``letter`` ``"J"``, the QZSS records of its
+    RXM-SFRBX L1 C/A frames — with the walk's counters; None: no record."""
     m = off.size
     is_x = x[off + 3] == 0x13
     legacy = ~is_x                                         # RXM-SFRB: ten dwords after chn, svid
@@ -258,7 +259,7 @@ def gps_records(x: np.ndarray, off: np.ndarray, week_ref: int | None, stats: dic
             words[i], good[i] = got, True
     sid = np.where((words[:, 0] >> 16) & 0xFF == sf.PREAMBLE, (words[:, 1] >> 2) & 7, 0)
     use = (good & (sid >= 1) & (sid <= 3) & (sv >= 1) & (sv <= 32)).nonzero()[0]
-    stats["gps_subframes"] += int(use.size)
+    stats[sf._LNAV_COUNTERS[letter][0]] += int(use.size)
     if week_ref is None or not use.size:
         return None
     last = latest_of_type(sv[use], sid[use].astype(np.int64) - 1, 3)
@@ -267,7 +268,9 @@ def gps_records(x: np.ndarray, off: np.ndarray, week_ref: int | None, stats: dic
         return None
     bits = _words24_bits(words[use])
     cols, ok = gps_columns(bits[sets].reshape(len(sets), 720), week_ref)
-    return _kept(sv[use][sets[:, 0]], "G", cols, ok)
+    if letter == "J":
+        cols["fit_interval_h"] = sf.qzss_fit_interval_h(np.where(cols["fit_interval_h"] == 4.0, 0, 1))
+    return _kept(sv[use][sets[:, 0]], letter, cols, ok)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -446,7 +449,7 @@ def beidou_records(x: np.ndarray, off: np.ndarray, latest: dict, d2_recs: dict, 
 
 def records(data: bytes, off: np.ndarray, end: np.ndarray, week_ref: int | None, latest: dict,
             stats: dict) -> tuple[list, list]:
-    """(column dicts of the GPS, Galileo and BeiDou D1 records, BeiDou D2 records as dicts) of the frames
+    """(column dicts of the GPS, QZSS, Galileo and BeiDou D1 records, BeiDou D2 records as dicts) of the frames
     ``data[off:end]`` that :func:`~cdgps_cli.io.sfrbx._stateful_mask` keeps, but GLONASS (log order)."""
     x = np.frombuffer(data, np.uint8)
     is_x = x[off + 3] == 0x13
@@ -456,6 +459,9 @@ def records(data: bytes, off: np.ndarray, end: np.ndarray, week_ref: int | None,
     sel = off[g == 0]
     if sel.size:
         parts.append(gps_records(x, sel, week_ref, stats))
+    sel = off[g == 5]
+    if sel.size:
+        parts.append(gps_records(x, sel, week_ref, stats, "J"))
     sel = off[g == 2]
     if sel.size:
         parts.append(galileo_records(x, sel, week_ref, stats))

@@ -63,14 +63,16 @@ UBX_SIGNALS = {
     "G:L1": ((0, 0),), "G:L2": ((0, 3), (0, 4)), "G:L5": ((0, 6), (0, 7)),
     "E:E1": ((2, 0), (2, 1)), "E:E5a": ((2, 3), (2, 4)), "E:E5b": ((2, 5), (2, 6)),
     "C:B1I": ((3, 0), (3, 1)), "C:B2I": ((3, 2), (3, 3)), "C:B2a": ((3, 7),),
+    "J:L1": ((5, 0),), "J:L2": ((5, 5), (5, 4)), "J:L5": ((5, 8), (5, 9)),
     "R:G1": ((6, 0),), "R:G2": ((6, 2),),
 }
 """RXM-RAWX (gnssId, sigId) pairs of each signal of :mod:`cdgps_cli.core.signals`, the preferred first
 (u-blox F9 interface description, "Signal identifiers": GPS L1C/A 0, L2 CL 3, L2 CM 4, L5 I 6, L5 Q 7;
 Galileo E1 C 0, E1 B 1, E5 aI 3, E5 aQ 4, E5 bI 5, E5 bQ 6; BeiDou B1I D1 0, D2 1, B2I D1 2, D2 3,
-B2a 7; GLONASS L1 OF 0, L2 OF 2).  u-blox 8 receivers (protocol < 27) report sigId 0 only: GPS L1 C/A,
-Galileo E1, BeiDou B1I, GLONASS L1."""
-_SYS_LETTER = {0: "G", 2: "E", 3: "C", 6: "R"}
+B2a 7; QZSS L1C/A 0, L2 CM 4, L2 CL 5, L5 I 8, L5 Q 9; GLONASS L1 OF 0, L2 OF 2; QZSS svId 1–10 is PRN − 192, the
+RINEX ``Jnn``).  u-blox 8 receivers (protocol < 27) report sigId 0 only: GPS L1 C/A, Galileo E1, BeiDou B1I, QZSS
+L1C/A, GLONASS L1."""
+_SYS_LETTER = {0: "G", 2: "E", 3: "C", 5: "J", 6: "R"}
 _GPS_SAT_NAMES = np.array([f"G{v:02d}" for v in range(256)], dtype=object)   # by svId (uint8)
 
 _SYNC = b"\xb5\x62"

@@ -25,7 +25,7 @@ from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, default_direction,
                                       ORIGIN_MOVE_SIGMAS, ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s, spans_meet, time_span
-from cdgps_cli.core.signals import SIGNALS, SYSTEM_NAMES, signal
+from cdgps_cli.core.signals import AUTO_SYSTEMS, SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             reported_positions, solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
@@ -977,7 +977,7 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     files = {n: _as_list(f) for n, f in receivers.items()}
     held = {n: set().union(*(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p) for p in fs))
             for n, fs in files.items()}
-    every = [s for s in SIGNALS if all(s in h for h in held.values())]
+    every = [s for s in SIGNALS if signal(s).system in AUTO_SYSTEMS and all(s in h for h in held.values())]
     systems = sorted({signal(s).system for s in every if signal(s).system in NAV_SYSTEMS})
     have = set()
     for p in nav_paths:
@@ -995,7 +995,7 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     source = (', '.join(map(str, nav_paths)) if nav_paths else
               "the RXM-SFRBX frames of the u-blox logs (no --nav given)"
               if any(is_ubx_log(p) for p in all_files) else "any file (no --nav given)")
-    warnings += _unprocessed_systems_note(files)
+    warnings += _unprocessed_systems_note(files) + _qzss_left_out_note(held)
     if lost:
         warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by "
                         f"{'both files' if len(files) == 2 else 'every receiver'} are not used: no ephemerides for "
@@ -1008,9 +1008,19 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     return use
 
 
+def _qzss_left_out_note(held: dict) -> list:
+    """A note naming the QZSS signals every receiver holds (``held``: receiver → its signal names), which ``auto``
+    leaves out (:data:`~cdgps_cli.core.signals.AUTO_SYSTEMS`), and how to use them."""
+    common = [s for s in SIGNALS if s.startswith("J:") and all(s in h for h in held.values())]
+    if not common:
+        return []
+    return [f"QZSS signals held by {'both files' if len(held) == 2 else 'every receiver'} ({', '.join(common)}) are "
+            f"left out by --signals auto: name them (--signals, [gnss] signals) to use them"]
+
+
 def _unprocessed_systems_note(files: dict) -> list:
-    """A note naming the systems (QZSS, SBAS, NavIC) whose phases every receiver's RINEX 3 files hold and that no
-    signal of cdgps belongs to (``auto`` left them out without a word; RTKLIB uses QZSS)."""
+    """A note naming the systems (SBAS, NavIC) whose phases every receiver's RINEX 3 files hold and that no
+    signal of cdgps belongs to (``auto`` would leave them out without a word)."""
     from cdgps_cli.core.signals import OTHER_SYSTEM_NAMES  # noqa: PLC0415
     from cdgps_cli.io.rinex_signals import phase_systems_in_file  # noqa: PLC0415
 
@@ -1022,8 +1032,8 @@ def _unprocessed_systems_note(files: dict) -> list:
     if not other:
         return []
     return [f"{', '.join(f'{OTHER_SYSTEM_NAMES[c]} ({c})' for c in other)} phases held by "
-            f"{'both files' if len(files) == 2 else 'every receiver'} are not used: cdgps processes GPS, Galileo, "
-            f"BeiDou and GLONASS signals"]
+            f"{'both files' if len(files) == 2 else 'every receiver'} are not used: cdgps processes "
+            f"{', '.join(list(SYSTEM_NAMES.values())[:-1])} and {list(SYSTEM_NAMES.values())[-1]} signals"]
 
 
 def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:

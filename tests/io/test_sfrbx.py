@@ -95,8 +95,9 @@ def _with_parity(bits: list[list[int]]) -> list[int]:
     return out
 
 
-def _sfrbx(sv: int, words30: list[int]) -> bytes:
-    payload = bytes((0, sv, 0, 0, 10, 3, 2, 0)) + struct.pack("<10I", *words30)
+def _sfrbx(sv: int, words30: list[int], gnss: int = 0, sig: int = 0) -> bytes:
+    """An RXM-SFRBX frame of ten words (GPS L1 C/A by default; ``gnss``, ``sig``: its gnssId and sigId)."""
+    payload = bytes((gnss, sv, sig, 0, 10, 3, 2, 0)) + struct.pack("<10I", *words30)
     body = bytes((0x02, 0x13)) + struct.pack("<H", len(payload)) + payload
     a = b = 0
     for x in body:

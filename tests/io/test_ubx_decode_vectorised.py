@@ -135,7 +135,8 @@ def test_sfrbx_counters_from_headers(log):
     for week in (None, 2381):
         for glonass in (False, True):
             _, stats = sfrbx.sfrbx_ephemerides(mixed, week, glonass=glonass)
-            ref = {"galileo_other_frames": 0, "beidou_cnav_frames": 0, "gps_cnav_frames": 0, "other_systems": {}}
+            ref = {"galileo_other_frames": 0, "beidou_cnav_frames": 0, "gps_cnav_frames": 0, "qzss_cnav_frames": 0,
+                   "other_systems": {}}
             for _, c, m, f in mixed:
                 pl = f[6:-2]
                 if (c, m) != (2, 0x13) or len(pl) < 8 or len(pl) != 8 + 4 * pl[4]:
@@ -149,10 +150,10 @@ def test_sfrbx_counters_from_headers(log):
                     ref["beidou_cnav_frames"] += w != 10
                 elif g == 6 and glonass:
                     pass
-                elif g != 0:
+                elif g not in (0, 5):
                     ref["other_systems"][str(g)] = ref["other_systems"].get(str(g), 0) + 1
                 elif w == 10 and s != 0:
-                    ref["gps_cnav_frames"] += 1
+                    ref["gps_cnav_frames" if g == 0 else "qzss_cnav_frames"] += 1
             assert {k: stats[k] for k in ref} == ref
             assert list(stats["other_systems"]) == list(ref["other_systems"])    # order of first appearance
             assert stats["sfrbx_frames"] == sum(c == 2 and m in (0x13, 0x11) for _, c, m, _ in mixed)

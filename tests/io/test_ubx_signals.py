@@ -73,9 +73,11 @@ def test_a_signal_the_log_does_not_carry_is_refused_naming_it(tmp_path):
     assert "Traceback" not in r.output and not out.exists(), r.output
 
 
-def _rawx_log(obs, path: Path) -> None:
+def rawx_log(obs, path: Path, sig_ids: dict | None = None) -> None:
     """RXM-RAWX frames of a simulated receiver's signal table: lock time growing from each lock
-    segment's start (restarting at an LLI slip), pseudorange and phase valid, half cycle valid."""
+    segment's start (restarting at an LLI slip), pseudorange and phase valid, half cycle valid; ``sig_ids``:
+    signal name → (gnssId, sigId) (default ``_SIG_ID``)."""
+    sig_ids = _SIG_ID if sig_ids is None else sig_ids
     frames = []
     start = {}
     for t, ep in obs.groupby("time_gps_s", sort=True):
@@ -85,7 +87,7 @@ def _rawx_log(obs, path: Path) -> None:
             key = (r.sat, r.signal)
             if key not in start or (int(r.lli) & 1):
                 start[key] = t
-            g, sig = _SIG_ID[r.signal]
+            g, sig = sig_ids[r.signal]
             lock = min(64500, int(round((t - start[key]) * 1000)))
             blocks.append(struct.pack("<ddfBBBBHBBBBBx", r.pseudorange_m, r.phase_cycles, 0.0, g, int(r.sat[1:]), sig, 0,
                                       lock, 45, 5, 2, 3, 0b0111))
@@ -117,7 +119,7 @@ def ubx_pair(tmp_path_factory):
     ints = {}
     for name, xyz, seed, drift in (("base", base, 1, 0.3), ("rover", rover, 2, -0.4)):
         s = simulate_receiver_signals(nav, xyz, t0, n, 1.0, sigs, seed=seed, clock_drift_ms=drift)
-        _rawx_log(s["obs"], tmp / f"{name}.ubx")
+        rawx_log(s["obs"], tmp / f"{name}.ubx")
         amb = s["ambiguities"].drop_duplicates(["signal", "sat"])
         ints[name] = {(r.signal, r.sat): int(r.n_cycles) for r in amb.itertuples()}
     (tmp / "job.toml").write_text(

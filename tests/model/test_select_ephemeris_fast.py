@@ -26,7 +26,10 @@ def _reference(nav, sat, t_gps_s, max_age_s):
     """The previous implementation's selection (sub-frames, pandas sort), for the rows it returns."""
     t1 = np.atleast_1d(np.asarray(t_gps_s, dtype=np.float64)).ravel()
     recs = nav[nav["sat"] == sat]
-    healthy = recs[recs["sv_health"] == 0]
+    h = recs["sv_health"].to_numpy()
+    if sat.startswith("J"):                          # QZSS: its health bit 0 is not a ranging signal's (IS-QZSS-PNT)
+        h = np.where(np.isfinite(h), h.astype(np.int64) // 2, h)
+    healthy = recs[h == 0]
     if "transmit_gps_s" in healthy.columns:
         healthy = healthy.sort_values("transmit_gps_s", ascending=False, na_position="last", kind="stable")
     toe = healthy["toe_gps_s"].to_numpy()

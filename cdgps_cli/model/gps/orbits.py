@@ -46,6 +46,8 @@ except ImportError:                      # the optional extension is not built: 
     _orbitcore = None
 
 __all__ = [
+    "healthy_ephemeris",
+    "QZSS_IGNORED_HEALTH_BITS",
     "GM_GPS",
     "GM_GALILEO",
     "GM_BY_SYSTEM",
@@ -92,9 +94,10 @@ GM_BEIDOU = 3.986004418e14
 """Earth gravitational constant of CGCS2000 (BDS-ICD-B1I §5.2.4.11), m³/s²."""
 OMEGA_E_BEIDOU = 7.2921150e-5
 """Earth rotation rate of CGCS2000 (BDS-ICD-B1I §5.2.4.11), rad/s."""
-GM_BY_SYSTEM = {"G": GM_GPS, "E": GM_GALILEO, "C": GM_BEIDOU}
-"""Gravitational constant per satellite-system letter (systems with a GPS-form Kepler ephemeris)."""
-OMEGA_E_BY_SYSTEM = {"G": OMEGA_E_GPS, "E": OMEGA_E_GPS, "C": OMEGA_E_BEIDOU}
+GM_BY_SYSTEM = {"G": GM_GPS, "E": GM_GALILEO, "C": GM_BEIDOU, "J": GM_GPS}
+"""Gravitational constant per satellite-system letter (systems with a GPS-form Kepler ephemeris; QZSS: the GPS
+values, IS-QZSS-PNT §5.5)."""
+OMEGA_E_BY_SYSTEM = {"G": OMEGA_E_GPS, "E": OMEGA_E_GPS, "C": OMEGA_E_BEIDOU, "J": OMEGA_E_GPS}
 """Earth rotation rate of each Kepler system's user algorithm, rad/s (Galileo: the GPS value)."""
 BEIDOU_GEO_PRNS = frozenset((1, 2, 3, 4, 5, 59, 60, 61, 62, 63))
 """BeiDou PRNs of geostationary satellites (BDS-ICD-B1I 3.0 §5.2.4.12; BDS-3 GEOs are 59–63)."""
@@ -329,6 +332,36 @@ def _glonass_at(v: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return state[:, :3].reshape(t.shape + (3,)), clock.reshape(t.shape)
 
 
+QZSS_IGNORED_HEALTH_BITS = 0x01
+"""Bits of a QZSS record's ``sv_health`` that do not concern its L1/L2/L5 ranging signals and are ignored: the
+least significant of the six health bits of subframe 1 (IS-QZSS-PNT; RTKLIB masks the same bit, its "LEX
+health", so a QZSS satellite flagged only there is used by both)."""
+
+
+def healthy_ephemeris(sats, sv_health) -> np.ndarray:
+    """Which ephemeris records are healthy: ``sv_health`` = 0, for QZSS (``J``) once the bits of
+    :data:`QZSS_IGNORED_HEALTH_BITS` are cleared.
+
+    Parameters
+    ----------
+    sats : array_like of str, shape (N,)
+        Satellite of each record (``"G05"``, ``"J02"`` …).
+    sv_health : array_like, shape (N,)
+        The records' health field as broadcast (RINEX ``SV health``).
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    h = np.asarray(sv_health, dtype=np.float64)
+    sats = np.asarray(sats, dtype=object)
+    qzss = np.fromiter((str(s)[:1] == "J" for s in sats), dtype=bool, count=sats.size)
+    if not qzss.any():
+        return h == 0
+    masked = np.where(qzss & np.isfinite(h), np.bitwise_and(np.nan_to_num(h).astype(np.int64), ~QZSS_IGNORED_HEALTH_BITS), h)
+    return masked == 0
+
+
 def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float | None = None) -> pd.DataFrame | pd.Series:
     """Pick, for each time, the healthy ephemeris of ``sat`` whose toe is nearest.
 
@@ -353,7 +386,7 @@ def select_ephemeris(nav: pd.DataFrame, sat: str, t_gps_s, *, max_age_s: float |
     Raises
     ------
     CdgpsError
-        When ``sat`` has no ephemeris at all, or no healthy one (``sv_health`` = 0) with
+        When ``sat`` has no ephemeris at all, or no healthy one (:func:`healthy_ephemeris`) with
         |t − toe| ≤ ``max_age_s`` for some of the times; the message lists the uncovered times
         and the toe/health of the records the file has for that satellite.
     """
@@ -377,7 +410,7 @@ def _ephemeris_rows(nav: pd.DataFrame, sat: str, t1: np.ndarray, max_age_s: floa
     if rows.size == 0:
         have = sorted(nav["sat"].unique().tolist())
         raise CdgpsError(f"no broadcast ephemeris for {sat} in the navigation data (satellites present: {' '.join(have) or 'none'})")
-    healthy = rows[health[rows] == 0]
+    healthy = rows[healthy_ephemeris(sat_col[rows], health[rows])]
     chosen = np.full(t1.shape, -1, dtype=np.int64)
     if healthy.size:
         if transmit is not None:
@@ -396,7 +429,8 @@ def _ephemeris_rows(nav: pd.DataFrame, sat: str, t1: np.ndarray, max_age_s: floa
         shown = ", ".join(gps_time_str(x) for x in t1[idx[:3]]) + (" …" if idx.size > 3 else "")
         toes = recs.sort_values("toe_gps_s")
         lst = "; ".join(
-            f"toe {gps_time_str(r.toe_gps_s)}" + ("" if r.sv_health == 0 else f" (unhealthy, sv_health={r.sv_health})")
+            f"toe {gps_time_str(r.toe_gps_s)}" + ("" if healthy_ephemeris([sat], [r.sv_health])[0]
+                                                  else f" (unhealthy, sv_health={r.sv_health})")
             for r in toes.itertuples()
         )
         if len(toes) > 8:

@@ -45,6 +45,7 @@ from cdgps_cli.model.gps.orbits import (  # noqa: I001
     ecef_to_geodetic,
     elevation,
     enu_matrix,
+    healthy_ephemeris,
     reception_ephemeris,
     sat_position_at_reception,
     sat_positions_at_reception,
@@ -344,7 +345,7 @@ def ephemeris_coverage_all(nav: pd.DataFrame, sats, times, *, max_age_s: float |
     ok = np.zeros(ts[0].shape, dtype=bool)
     # each satellite's sorted healthy toes (as a groupby("sat") over nav's healthy rows gives them; only the
     # two columns taken, not a filtered copy of the whole table)
-    healthy = (nav["sv_health"] == 0).to_numpy()
+    healthy = healthy_ephemeris(nav["sat"].to_numpy(), nav["sv_health"].to_numpy())
     codes, names = pd.factorize(nav["sat"].to_numpy()[healthy], sort=True)
     toe_all = nav["toe_gps_s"].to_numpy()[healthy]
     toes = {s: np.sort(toe_all[codes == i]) for i, s in enumerate(names)}
