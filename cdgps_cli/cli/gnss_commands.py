@@ -409,6 +409,11 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
                    "does is fixed and the epoch stays float [0.999].")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
+@click.option("--start-time", "start_time", default=None,
+              help="First rover epoch solved, GPS time: YYYY/MM/DD HH:MM:SS[.f] or YYYY-MM-DDTHH:MM:SS[.f] (RTKLIB's "
+                   "-ts) [the record's first].")
+@click.option("--end-time", "end_time", default=None,
+              help="Last rover epoch solved, GPS time, as --start-time (RTKLIB's -te) [the record's last].")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix; .kml, .kmz, .gpx, .sbp, .stat are refused: pos2kml makes KML from a .pos).")
 @click.option("--pos-frame", "pos_frame", type=click.Choice(["llh", "xyz", "enu"]), default=None,
@@ -418,16 +423,20 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
 @click.pass_context
 def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_fix, mask_deg, ratio_threshold, max_age_s,
         sync_tol_s, iono_threshold_km, tropo_threshold_km, antex, base_antenna, rover_antenna, direction, code_correlation_s, code_noise, age_noise, fix_and_hold, wrong_fix_probability,
-        hold_after_fixes, min_success_rate, float_only, output, pos_frame, as_json):
+        hold_after_fixes, min_success_rate, float_only, start_time, end_time, output, pos_frame, as_json):
     """Double differences per constellation and frequency, integers by LAMBDA (docs/gnss-pipeline.md, "Multi-GNSS").
 
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
     with gaps or a lower rate is bridged, its σ growing with the age); every rover epoch not used is
     counted with its reason."""
+    from cdgps_cli.core.gps_time import parse_gps_time
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
     options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
                "mode": mode, "glonass_fix": glonass_fix}
+    for key, text, flag in (("start_gps_s", start_time, "--start-time"), ("end_gps_s", end_time, "--end-time")):
+        if text is not None:
+            options[key] = parse_gps_time(text, flag)
     if float_only:
         options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),

@@ -64,6 +64,30 @@ def check_time_of_day(hour, minute, second) -> None:
         raise ValueError(f"second must be in [0, {SECOND_MAX:g}), got {second}")
 
 
+_TIME_FORMATS = ("%Y-%m-%dT%H:%M:%S", "%Y-%m-%d %H:%M:%S", "%Y/%m/%d %H:%M:%S", "%Y-%m-%dT%H:%M", "%Y-%m-%d %H:%M",
+                 "%Y/%m/%d %H:%M", "%Y-%m-%d", "%Y/%m/%d")
+
+
+def parse_gps_time(text: str, what: str) -> float:
+    """A GPS date and time written ``YYYY-MM-DD[THH:MM[:SS[.f]]]`` or ``YYYY/MM/DD[ HH:MM[:SS[.f]]]`` (RTKLIB's ``-ts``
+    form) → GPS seconds; ``what`` names the option in the error (CdgpsError) when it is neither."""
+    from cdgps_cli.core.errors import CdgpsError  # noqa: PLC0415
+
+    body, frac = str(text).strip(), 0.0
+    if "." in body[-8:] and body.count(":") == 2:        # fractional seconds
+        body, _, f = body.rpartition(".")
+        frac = float("0." + f) if f.isdigit() else math.nan
+    for fmt in _TIME_FORMATS:
+        try:
+            d = _dt.datetime.strptime(body, fmt)
+        except ValueError:
+            continue
+        if math.isfinite(frac):
+            return gps_seconds(d.year, d.month, d.day, d.hour, d.minute, d.second + frac)
+    raise CdgpsError(f"{what} expects a GPS date and time, YYYY-MM-DD[THH:MM:SS[.f]] or YYYY/MM/DD HH:MM:SS[.f], "
+                     f"got {text!r}")
+
+
 def gps_time_str(t_gps_s: float) -> str:
     """Format GPS seconds as ``YYYY-MM-DD hh:mm:ss.sss GPST`` (for messages)."""
     if not np.isfinite(t_gps_s):

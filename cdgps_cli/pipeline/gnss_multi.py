@@ -24,7 +24,7 @@ from cdgps_cli.config.options import (CODE_NOISE_MIN_WINDOWS, default_direction,
                                       HEADER_POSITION_TOL_M, MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS,
                                       ORIGIN_MOVE_SIGMAS, ROVER_ORIGIN_TOL_M)
 from cdgps_cli.core.errors import CdgpsError
-from cdgps_cli.core.gps_time import gps_time_str, nominal_interval_s, spans_meet, time_span
+from cdgps_cli.core.gps_time import distinct_times, gps_time_str, nominal_interval_s, spans_meet, time_span
 from cdgps_cli.core.signals import AUTO_SYSTEMS, SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             reported_positions, solve_rtk, troposphere_at_epochs)
@@ -128,9 +128,51 @@ def validate_options(options: dict) -> dict:
             bad.append(f"{key}: expected a number of seconds > 0, got {opt[key]}")
     if float(opt["max_age_s"]) < float(opt["sync_tol_s"]):
         bad.append(f"max_age_s: expected ≥ sync_tol_s ({opt['sync_tol_s']} s), got {opt['max_age_s']}")
+    bad += _window_errors(opt)
     if bad:
         raise CdgpsError("invalid rtk options: " + "; ".join(bad))
     return opt
+
+
+def _window_errors(opt: dict) -> list:
+    """What is wrong with ``start_gps_s`` / ``end_gps_s`` (each None or a finite GPS time, start ≤ end)."""
+    bad = []
+    for key in ("start_gps_s", "end_gps_s"):
+        v = opt[key]
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                              or not np.isfinite(v)):
+            bad.append(f"{key}: expected a GPS time in seconds or None, got {v!r}")
+    if not bad and None not in (opt["start_gps_s"], opt["end_gps_s"]) and opt["start_gps_s"] > opt["end_gps_s"]:
+        bad.append(f"end_gps_s: expected at or after start_gps_s ({gps_time_str(opt['start_gps_s'])}), got "
+                   f"{gps_time_str(opt['end_gps_s'])}")
+    return bad
+
+
+#: why a rover epoch of its file was not solved: outside ``start_gps_s`` … ``end_gps_s``
+OUTSIDE_WINDOW = "outside the time window asked for (--start-time / --end-time)"
+
+
+def _time_window(b: pd.DataFrame, r: pd.DataFrame, opt: dict, base_path, rover_path) -> tuple:
+    """The base and rover tables cut to the options' window (``start_gps_s`` … ``end_gps_s``, the rover's epochs; the
+    base's ``max_age_s`` + ``sync_tol_s`` wider on each side) and the number of rover epochs left out; the same
+    tables and 0 without one.  CdgpsError naming the rover's span when no rover epoch is inside."""
+    lo, hi = opt["start_gps_s"], opt["end_gps_s"]
+    if lo is None and hi is None:
+        return b, r, 0
+    lo, hi = -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
+    tr = r["time_gps_s"].to_numpy()
+    keep = (tr >= lo - 1e-6) & (tr <= hi + 1e-6)
+    if not keep.any():
+        span = time_span(tr)
+        has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
+        want = " – ".join(gps_time_str(v) if np.isfinite(v) else "its end" for v in (lo, hi))
+        raise CdgpsError(f"{rover_path} (rover): no epoch in the window asked for ({want}: --start-time / --end-time); "
+                         f"its epochs span {has}")
+    margin = float(opt["max_age_s"]) + float(opt["sync_tol_s"])
+    tb = b["time_gps_s"].to_numpy()
+    kb = (tb >= lo - margin) & (tb <= hi + margin)
+    n_outside = int(distinct_times(tr).size - distinct_times(tr[keep]).size)
+    return b[kb].reset_index(drop=True), r[keep].reset_index(drop=True), n_outside
 
 
 def _holds_none_of(exc: CdgpsError) -> bool:
@@ -224,6 +266,9 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
              if "glonass_k" in nav.columns else {})
     hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings)
     hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings)
+    b, r, n_outside = _time_window(b, r, opt, base_path, rover_path)
+    if n_outside and hr.get("file_epochs") is not None:        # (counted apart, not as epochs without a phase)
+        hr = {**hr, "file_epochs": int(hr["file_epochs"]) - n_outside}
     _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
         raise nav_error
@@ -260,7 +305,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
         raise
-    ep = _count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r)
+    ep = _with_dropped(_count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r),
+                       OUTSIDE_WINDOW, n_outside)
     if ep["dropped"]:
         warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
                         + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
