@@ -14,6 +14,7 @@ import functools
 import io as _io
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -243,6 +244,56 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         raise CdgpsError(f"{out_csv}: pos_frame {opt['pos_frame']!r} (--pos-frame) is the coordinates of a .pos output; "
                          f"this output is not one (its suffix is not .pos)")
     _refuse_a_format_not_written(out_csv)
+    pair = _read_pair(base_path, rover_path, nav_paths, opt)
+    b, r, hb, hr, nav, warnings = pair.b, pair.r, pair.hb, pair.hr, pair.nav, pair.warnings
+    base_path, rover_path, nav_paths = pair.base_path, pair.rover_path, pair.nav_paths
+    # the base first: a rover without a position is placed by single-point positioning started at the base
+    bx = _base_antenna(hb, base_xyz_m, base_path)
+    if base_xyz_m is None:
+        _check_base_header(bx, b, nav, base_path)
+    warnings += rover_delta_note(hr, f"{rover_path} (rover)")
+    rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
+    ant = _antenna_models(opt, {"base": hb, "rover": hr}, {"base": base_path, "rover": rover_path}, warnings)
+    gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths, ant[who]) for df, xyz, path, who in
+              ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
+    warnings += _geometry_warnings({"base": (base_path, gb), "rover": (rover_path, gr)})
+    gb.attrs, gr.attrs = {}, {}
+    code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
+    warnings += _code_noise_warning(code_noise, {"base": base_path, "rover": rover_path},
+                                    {"base": nominal_interval_s(gb["time_gps_s"].to_numpy()),
+                                     "rover": nominal_interval_s(gr["time_gps_s"].to_numpy())})
+    try:
+        rover = (r, rover_path, rx_from_spp, ant["rover"], hr.get("position_source"))
+        placed = rx
+        rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths), warnings=warnings)
+        if rx is not placed:           # the origin is no longer the file's position: the second note says what it is
+            rover = (rover[0], rover[1], False, rover[3], "a-priori position (moved there, above)")
+        res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths),
+                                                       code_noise=code_noise, warnings=warnings)
+    except CdgpsError as exc:
+        if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
+            raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
+        raise
+    ep = _with_dropped(_count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r),
+                       OUTSIDE_WINDOW, pair.n_outside)
+    warnings += _solution_warnings(res, ep, opt, rover_path)
+    applied = {**opt, "antex": opt["antex"] if any(m is not None for m in ant.values()) else None}
+    text = solution_text(res, pair.sigs, applied, out_csv, bx, inputs=(*pair.rover_files, *pair.base_files, *nav_paths))
+    write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
+    antennas = {"antex": None if opt["antex"] is None else str(opt["antex"]),
+                **{who: (None if m is None else " ".join(m.name.split())) for who, m in ant.items()}}
+    return {**_summary(res, per_epoch), "signals": pair.sigs, "epoch_pairing": ep, "antennas": antennas,
+            "output": str(out_csv), "mode": opt["mode"], "pos_frame": opt["pos_frame"],
+            "base_xyz_m": [float(v) for v in bx], "warnings": warnings}
+
+
+def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
+    """``rtk``'s inputs read and checked: the files expanded (none empty), the signals (``auto`` resolved, kept in
+    ``opt["signals"]``), the ephemerides, both receivers' headers and signal tables (in the options' time window;
+    repeated epochs and unlocked channels out), checked to share epochs and signals; what was noticed in
+    ``warnings``.  Attributes: ``b``, ``r``, ``hb``, ``hr``, ``nav``, ``nav_paths``, ``sigs``, ``base_files``,
+    ``rover_files``, ``base_path``, ``rover_path`` (their names as text), ``n_outside`` (rover epochs outside the
+    window), ``warnings``."""
     base_files, rover_files = (expand_paths(_as_list(p), f"--{who}") for p, who in ((base_path, "base"), (rover_path, "rover")))
     # a navigation file named twice, or matched by two patterns, is read once (its ephemerides are merged anyway)
     nav_paths = expand_paths(list(nav_paths or ()), "--nav", repeats="once")
@@ -278,52 +329,24 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
         opt["signals"] = tuple(sigs)
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
-    # the base first: a rover without a position is placed by single-point positioning started at the base
-    bx = _base_antenna(hb, base_xyz_m, base_path)
-    if base_xyz_m is None:
-        _check_base_header(bx, b, nav, base_path)
-    warnings += rover_delta_note(hr, f"{rover_path} (rover)")
-    rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
-    ant = _antenna_models(opt, {"base": hb, "rover": hr}, {"base": base_path, "rover": rover_path}, warnings)
-    gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths, ant[who]) for df, xyz, path, who in
-              ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
-    warnings += _geometry_warnings({"base": (base_path, gb), "rover": (rover_path, gr)})
-    gb.attrs, gr.attrs = {}, {}
-    code_noise = receivers_code_noise(gb, gr, opt)       # the observations' own: the same for every solve below
-    warnings += _code_noise_warning(code_noise, {"base": base_path, "rover": rover_path},
-                                    {"base": nominal_interval_s(gb["time_gps_s"].to_numpy()),
-                                     "rover": nominal_interval_s(gr["time_gps_s"].to_numpy())})
-    try:
-        rover = (r, rover_path, rx_from_spp, ant["rover"], hr.get("position_source"))
-        placed = rx
-        rx, gr = _place_rover(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths), warnings=warnings)
-        if rx is not placed:           # the origin is no longer the file's position: the second note says what it is
-            rover = (rover[0], rover[1], False, rover[3], "a-priori position (moved there, above)")
-        res, gr, per_epoch = _solve_where_the_rover_is(gb, gr, bx, rx, opt, rover=rover, nav=(nav, nav_paths),
-                                                       code_noise=code_noise, warnings=warnings)
-    except CdgpsError as exc:
-        if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
-            raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
-        raise
-    ep = _with_dropped(_count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r),
-                       OUTSIDE_WINDOW, n_outside)
+    return SimpleNamespace(b=b, r=r, hb=hb, hr=hr, nav=nav, nav_paths=nav_paths, sigs=sigs, base_files=base_files,
+                           rover_files=rover_files, base_path=base_path, rover_path=rover_path, n_outside=n_outside,
+                           warnings=warnings)
+
+
+def _solution_warnings(res: dict, ep: dict, opt: dict, rover_path) -> list:
+    """What a solution says beside its numbers: the rover epochs not used and why, a float variance out of the model,
+    slips no receiver flagged, code steps taken out."""
+    out = []
     if ep["dropped"]:
-        warnings.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
-                        + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
-                        + f" (max_age_s {opt['max_age_s']:g} s)")
-    warnings += _float_variance_warning(res)
+        out.append(f"{rover_path} (rover): {sum(ep['dropped'].values())} of {ep['rover_epochs']} epochs not used: "
+                   + "; ".join(f"{n} {why}" for why, n in ep["dropped"].items())
+                   + f" (max_age_s {opt['max_age_s']:g} s)")
+    out += _float_variance_warning(res)
     ev = res["unflagged_slips"]
-    warnings += unflagged_slip_text(ev["sat"], ev["signal"], ev["time_gps_s"])
+    out += unflagged_slip_text(ev["sat"], ev["signal"], ev["time_gps_s"])
     cs = res["code_clock_steps"]
-    warnings += code_steps_warning(cs["step_m"], cs["signal"], cs["time_gps_s"])
-    applied = {**opt, "antex": opt["antex"] if any(m is not None for m in ant.values()) else None}
-    text = solution_text(res, sigs, applied, out_csv, bx, inputs=(*rover_files, *base_files, *nav_paths))
-    write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
-    antennas = {"antex": None if opt["antex"] is None else str(opt["antex"]),
-                **{who: (None if m is None else " ".join(m.name.split())) for who, m in ant.items()}}
-    return {**_summary(res, per_epoch), "signals": sigs, "epoch_pairing": ep, "antennas": antennas,
-            "output": str(out_csv), "mode": opt["mode"], "pos_frame": opt["pos_frame"],
-            "base_xyz_m": [float(v) for v in bx], "warnings": warnings}
+    return out + code_steps_warning(cs["step_m"], cs["signal"], cs["time_gps_s"])
 
 
 def _run_nav(nav_paths: list, systems: list, base_files: list, rover_files: list, paths: tuple) -> tuple:
