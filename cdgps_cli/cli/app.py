@@ -15,7 +15,7 @@ import click
 
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
-from cdgps_cli.io.atomic import TERMINATED_EXIT, Terminated, sigterm_raises
+from cdgps_cli.io.atomic import INTERRUPTED_EXIT, TERMINATED_EXIT, Terminated, sigterm_raises
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.cli.guard import GuardedCommand
 
@@ -93,6 +93,10 @@ class _Group(click.Group):
             progress.close_all()
             click.echo("cdgps: terminated (SIGTERM); no partial output left", err=True)
             ctx.exit(TERMINATED_EXIT)
+        except KeyboardInterrupt:               # Ctrl-C: as SIGTERM (click's own "Aborted!" and exit 1 said less)
+            progress.close_all()
+            click.echo("cdgps: interrupted (Ctrl-C); no partial output left", err=True)
+            ctx.exit(INTERRUPTED_EXIT)
         except MemoryError:                     # last line of defence (inputs are bounded first)
             _fail(ctx, "out of memory: the inputs or options ask for more memory than this machine has "
                        "(a shorter --duration or a smaller input)")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from cdgps_cli.core import progress
-from cdgps_cli.io.atomic import Terminated
+from cdgps_cli.io.atomic import INTERRUPTED_EXIT, Terminated
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.cli.app import _echo, _warn, _say, _emit_json, main
 
@@ -50,6 +50,7 @@ def batch_cmd(ctx, manifest, out_dir, scheduler, cluster_class, cluster_option, 
       3  the batch ran to its end but some session failed (listed on stderr, in batch.json, index.html)
       4  the batch itself failed (e.g. the scheduler was lost): traceback in OUTDIR/batch-error.log;
          finished stages are recorded, --resume goes on from them
+    130  interrupted (Ctrl-C): the sessions done are kept, --resume goes on from them
     """
     from cdgps_cli.pipeline.batch_dask import (EXIT_BATCH_FAILED, EXIT_SESSIONS_FAILED, job_script,
                                                parse_cluster_options, run_batch)
@@ -72,9 +73,10 @@ def batch_cmd(ctx, manifest, out_dir, scheduler, cluster_class, cluster_option, 
                       progress=None if ctx.obj.get("quiet") else progress.write,
                       warn=_warn)
     except KeyboardInterrupt:
-        click.echo(f"cdgps: batch interrupted; the sessions done are kept: run it again with --resume to go on "
-                   f"({Path(out_dir)})", err=True)
-        raise
+        progress.close_all()
+        click.echo(f"cdgps: batch interrupted (Ctrl-C); the sessions done are kept: run it again with --resume to go "
+                   f"on ({Path(out_dir)})", err=True)
+        ctx.exit(INTERRUPTED_EXIT)
     except (CdgpsError, click.exceptions.Exit, click.ClickException, Terminated):
         raise
     except Exception as exc:           # the batch layer itself, not a session (those are in batch.json)

@@ -235,6 +235,9 @@ class Terminated(BaseException):
 #: exit status of a command ended by SIGTERM (128 + 15, as a shell reports a killed program)
 TERMINATED_EXIT = 143
 
+#: exit status of a command ended by Ctrl-C (SIGINT: 128 + 2, as a shell reports it)
+INTERRUPTED_EXIT = 130
+
 
 def _raise_terminated(signum, frame):
     signal.signal(signal.SIGTERM, signal.SIG_DFL)      # a second SIGTERM kills at once
