@@ -22,7 +22,8 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 LOGS = [DATA / "pygpsdata_testobsnavdata.log", DATA / "ublox-glo.log", DATA / "ubx_20080526_head.ubx",
         DATA / "pygpsdata-RXMRAWX.log", SHARED / "real-pairs" / "ublox-walk" / "gnss_1730.ubx",
-        SHARED / "ubx" / "ubx_20080526.ubx", SHARED / "ubx" / "pygpsdata-RXMRAWX.log"]
+        SHARED / "ubx" / "ubx_20080526.ubx", SHARED / "ubx" / "pygpsdata-RXMRAWX.log",
+        DATA / "qzsl6tool-f9p-hiroshima" / "20230919-114418.ubx"]
 
 
 def _both(run):
@@ -57,7 +58,7 @@ def test_batch_equals_the_walk_on_every_log(path):
             ref, got = _both(lambda: sfrbx.sfrbx_ephemerides_at(data, off, end, week, glonass=glonass))
             _assert_same(ref, got)
             n += len(ref[0])
-    if path.name in ("gnss_1730.ubx", "pygpsdata_testobsnavdata.log", "ubx_20080526.ubx"):
+    if path.name in ("gnss_1730.ubx", "pygpsdata_testobsnavdata.log", "ubx_20080526.ubx", "20230919-114418.ubx"):
         assert n > 0                                       # records were compared, not only empty tables
 
 

@@ -1,5 +1,9 @@
 """QZSS LNAV subframes from RXM-SFRBX (gnssId 5, L1 C/A) and the QZSS health rule.
 
+Real: a u-blox ZED-F9P log of 40 s at Hiroshima (tests/data/qzsl6tool-f9p-hiroshima) whose SFRBX frames hold QZSS
+subframes: the four QZSS ephemerides decoded from them put the log's own QZSS pseudoranges within 3.6 m (mean,
+each satellite) of the position and clock its GPS pseudoranges give — a wrong field would be kilometres off.
+
 QZSS broadcasts on L1 C/A the GPS LNAV subframes (IS-QZSS-PNT: layout, parity, week and scale factors of
 IS-GPS-200), so the GPS encoder of test_sfrbx.py makes them: the same subframes sent as GPS and as QZSS give the
 same record but for the satellite (``G07`` / ``J02``) and the fit interval (QZSS's flag 0 is 2 h).  The batch
@@ -22,6 +26,7 @@ from cdgps_cli.model.gps.orbits import healthy_ephemeris, select_ephemeris
 from tests.io.test_sfrbx import EPH, _encode_subframe, _sfrbx, _with_parity
 
 MOSAIC_NAV = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real-pairs" / "mosaic-static" / "base.nav"
+F9P_HIROSHIMA = Path(__file__).resolve().parents[1] / "data" / "qzsl6tool-f9p-hiroshima" / "20230919-114418.ubx"
 
 
 def _subframes(gnss: int, sv: int, tow0: int, sig: int = 0) -> bytes:
@@ -70,3 +75,25 @@ def test_the_real_mosaic_pairs_qzss_records_are_usable():
     assert set(nav["sat"]) == {"J02", "J03", "J07"} and (nav["sv_health"] == 1).all()
     assert healthy_ephemeris(nav["sat"].to_numpy(), nav["sv_health"].to_numpy()).all()
     assert (nav["fit_interval_h"] == 2.0).all()                              # the files' flag 0
+
+
+def test_the_real_f9p_logs_qzss_ephemerides_explain_its_qzss_pseudoranges():
+    from cdgps_cli.estimation.rtk_multi import receiver_geometry
+    from cdgps_cli.io.ubx import read_ubx_log, read_ubx_signals
+    from cdgps_cli.model.gps.positioning import spp_spread
+
+    info, _, nav = read_ubx_log(F9P_HIROSHIMA)
+    assert info["sfrbx"]["qzss_subframes"] == 16 and info["sfrbx"]["parity_failures"] == 0
+    qzss = nav[nav["sat"].str.startswith("J")]
+    assert qzss["sat"].tolist() == ["J02", "J03", "J04", "J07"] and (qzss["sv_health"] == 0).all()
+    assert (np.abs(qzss["sqrt_a_sqrt_m"] ** 2 - 42_164e3) < 100e3).all()          # IGSO / GEO semi-major axes
+    tab = read_ubx_signals(F9P_HIROSHIMA, ["G:L1", "J:L1"])
+    gps = tab[tab["signal"] == "G:L1"]
+    x = spp_spread(gps["sat"].to_numpy(), gps["time_gps_s"].to_numpy(), gps["pseudorange_m"].to_numpy(), nav)
+    g = receiver_geometry(tab, nav, x)
+    res = (g["pseudorange_m"] - np.linalg.norm(g[["sx", "sy", "sz"]].to_numpy() - x, axis=1) + g["sat_clock_m"]
+           - g["trop_m"])
+    g = g.assign(res=res - g["time_gps_s"].map(res[g["signal"] == "G:L1"].groupby(g["time_gps_s"]).median()))
+    per_sat = g[g["signal"] == "J:L1"].groupby("sat")["res"].agg(["mean", "std", "size"])
+    assert per_sat.index.tolist() == ["J02", "J03", "J04", "J07"] and (per_sat["size"] == 36).all()
+    assert (per_sat["mean"].abs() < 6.0).all() and (per_sat["std"] < 1.0).all(), per_sat     # m (3.6 m at most)
