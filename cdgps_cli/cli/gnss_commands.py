@@ -140,7 +140,8 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
 @click.option("--sigma", "sigma", type=float, default=None, help="random_walk process noise, m/√s per component [0.001].")
 @click.option("--name", default=None, help="Run name (default: the antenna names).")
 @click.option("--signals", default="auto", show_default=True,
-              help="[gnss] signals: 'auto' (every signal all receivers hold whose system has ephemerides in --nav, "
+              help="[gnss] signals: 'auto' (every GPS, Galileo, BeiDou and GLONASS signal all receivers hold whose system "
+                   "has ephemerides in --nav, "
                    "or in the u-blox logs' RXM-SFRBX; as 'cdgps rtk'), or comma-separated names (G:L1,E:E1,...). "
                    "GPS L1 alone writes no key (the GPS L1 path).")
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Config TOML to write.")

@@ -117,7 +117,8 @@ def simulate(ctx, config, duration_s, seed, scenario, phase_sigma_m, multipath_s
                    "NAME-gyro; NAME default imu), for 'estimate --fuse'; repeatable. Default: the GNSS config's sensors "
                    "key. A --ubx receiver log with ESF-MEAS gives sensors ANTENNA-accel, ANTENNA-gyro by itself.")
 @click.option("--signals", "signals", default=None, metavar="auto|NAMES",
-              help="GNSS without --config: 'auto' (every signal all receivers hold whose system has ephemerides, as "
+              help="GNSS without --config: 'auto' (every GPS, Galileo, BeiDou and GLONASS signal all receivers hold whose "
+                   "system has ephemerides, as "
                    "'cdgps config' and 'cdgps rtk' choose) or comma-separated names (G:L1,E:E1,...) [auto]; with "
                    "--config, its [gnss] signals.")
 @click.option("--antex", "antex", type=click.Path(dir_okay=False), default=None,

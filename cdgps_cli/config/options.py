@@ -196,8 +196,9 @@ MULTI_GNSS_DEFAULTS = {
     # between types, which a long baseline of mixed antennas shows in its height).  Each receiver's antenna is its
     # RINEX header's ANT # / TYPE unless named here ("none": no model for that receiver)
     "antex": None, "base_antenna": None, "rover_antenna": None,
-    # the rover epochs solved, GPS s, both ends included (RTKLIB's -ts / -te); None: from the record's first epoch or
-    # to its last.  The base is read max_age_s + sync_tol_s wider on each side, where those epochs find their pairs
+    # the rover epochs solved, GPS s (RTKLIB's -ts / -te: a tag up to sync_tol_s before the start or less than that
+    # after the end is in); None: from the record's first epoch or to its last.  The base is read max_age_s wider on
+    # each side, where those epochs find their pairs
     "start_gps_s": None, "end_gps_s": None,
     **EPOCH_PAIRING_DEFAULTS,
 }

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import re
 
 import numpy as np
 
@@ -64,28 +65,33 @@ def check_time_of_day(hour, minute, second) -> None:
         raise ValueError(f"second must be in [0, {SECOND_MAX:g}), got {second}")
 
 
-_TIME_FORMATS = ("%Y-%m-%dT%H:%M:%S", "%Y-%m-%d %H:%M:%S", "%Y/%m/%d %H:%M:%S", "%Y-%m-%dT%H:%M", "%Y-%m-%d %H:%M",
-                 "%Y/%m/%d %H:%M", "%Y-%m-%d", "%Y/%m/%d")
+_GPS_TIME_TEXT = re.compile(r"([0-9]{4})([-/])([0-9]{2})\2([0-9]{2})[ T]([0-9]{2}):([0-9]{2})(?::([0-9]{2})(\.[0-9]+)?)?")
 
 
 def parse_gps_time(text: str, what: str) -> float:
-    """A GPS date and time written ``YYYY-MM-DD[THH:MM[:SS[.f]]]`` or ``YYYY/MM/DD[ HH:MM[:SS[.f]]]`` (RTKLIB's ``-ts``
-    form) → GPS seconds; ``what`` names the option in the error (CdgpsError) when it is neither."""
+    """A GPS date and time written ``YYYY/MM/DD HH:MM[:SS[.f]]`` (RTKLIB's ``-ts`` form) or ``YYYY-MM-DDTHH:MM[:SS[.f]]``
+    (ISO 8601; a space for the ``T`` too) → GPS seconds; ``what`` names the option in the error (CdgpsError) when the
+    text is neither (a date alone is refused: it would mean its 00:00), or a time before GPS time began
+    (1980-01-06)."""
     from cdgps_cli.core.errors import CdgpsError  # noqa: PLC0415
 
-    body, frac = str(text).strip(), 0.0
-    if "." in body[-8:] and body.count(":") == 2:        # fractional seconds
-        body, _, f = body.rpartition(".")
-        frac = float("0." + f) if f.isdigit() else math.nan
-    for fmt in _TIME_FORMATS:
-        try:
-            d = _dt.datetime.strptime(body, fmt)
-        except ValueError:
-            continue
-        if math.isfinite(frac):
-            return gps_seconds(d.year, d.month, d.day, d.hour, d.minute, d.second + frac)
-    raise CdgpsError(f"{what} expects a GPS date and time, YYYY-MM-DD[THH:MM:SS[.f]] or YYYY/MM/DD HH:MM:SS[.f], "
-                     f"got {text!r}")
+    m = _GPS_TIME_TEXT.fullmatch(str(text).strip())
+    form = "YYYY/MM/DD HH:MM:SS[.f] or YYYY-MM-DDTHH:MM:SS[.f]"
+    if m is None:
+        raise CdgpsError(f"{what} expects a GPS date and time, {form}, got {text!r}")
+    y, mo, d, h, mi = (int(m.group(k)) for k in (1, 3, 4, 5, 6))
+    sec = int(m.group(7) or 0) + (float(m.group(8)) if m.group(8) else 0.0)
+    try:
+        _dt.date(y, mo, d)
+        check_time_of_day(h, mi, sec)
+        if sec >= 60:
+            raise ValueError(f"second must be in [0, 60) (GPS time has no leap second), got {sec:g}")
+    except ValueError as exc:
+        raise CdgpsError(f"{what} expects a GPS date and time, {form}, got {text!r} ({exc})") from None
+    t = gps_seconds(y, mo, d, h, mi, sec)
+    if t < 0:
+        raise CdgpsError(f"{what}: {text!r} is before GPS time began (1980-01-06 00:00:00)")
+    return t
 
 
 def gps_time_str(t_gps_s: float) -> str:

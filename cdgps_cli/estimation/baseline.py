@@ -508,12 +508,12 @@ def _receiver_clock(st: Station, o: pd.DataFrame, tag: np.ndarray, t_label: np.n
 
 
 #: systems whose pseudoranges give a receiver's clock with the anchor's (CDMA: one range model for all satellites)
-_CLOCK_SYSTEMS = ("G", "E", "C")
+_CLOCK_SYSTEMS = ("G", "E", "C", "J")
 
 
 def _clock_rows(st: Station, tag: np.ndarray, t_label: np.ndarray, nav: pd.DataFrame):
     """The rows a receiver's clock is estimated from when it has a signal table: one pseudorange per satellite
-    and time tag of every GPS, Galileo and BeiDou signal recorded at the common epochs' tags ``tag`` (GPS s; NaN:
+    and time tag of every GPS, Galileo, BeiDou and QZSS signal recorded at the common epochs' tags ``tag`` (GPS s; NaN:
     no epoch) and covered by ``nav``, as (tag index, number of tags, satellites, time tags, pseudoranges m, each
     epoch's tag index (−1: none)); None without a signal table, or when no row qualifies (the GPS L1 rows serve).
 
@@ -766,7 +766,7 @@ def _clocked_tags(tags: tuple, measured: tuple, stations: tuple, warnings: list)
         lost = np.isfinite(tag) & ~ok
         if lost.any():
             warnings.append(f"{st.name}: {int(lost.sum())} epoch(s) without a code from a satellite with an ephemeris "
-                            f"(GPS, Galileo, BeiDou) to find its clock: their signal rows are not used")
+                            f"(GPS, Galileo, BeiDou, QZSS) to find its clock: their signal rows are not used")
         out.append(np.where(ok, tag, np.nan))
     return tuple(out)
 

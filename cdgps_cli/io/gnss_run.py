@@ -1628,7 +1628,7 @@ def _ubx_comments(n: str, p, comments: list, warnings: list | None):
     base = rx.info.get("rtcm_base")
     sf = rx.info.get("sfrbx") or {}
     comments.append(f"{n}: {Path(p).name}, u-blox RXM-RAWX, {t.size} epochs {span_text(t)}, GPS satellites "
-                    f"{', '.join(rx.info.get('gps_satellites') or [])}; {int(sf.get('ephemerides') or 0)} GPS "
+                    f"{', '.join(rx.info.get('gps_satellites') or [])}; {int(sf.get('ephemerides') or 0)} broadcast "
                     f"ephemerides from RXM-SFRBX")
     if base:
         extra = f", {base['distinct']} distinct positions in {base['count']} messages: the last is used" \

@@ -309,7 +309,7 @@ _BEIDOU_ORBIT_LINES = _ORBIT_LINES[:5] + (("sv_accuracy_m", "sv_health", "tgd_s"
 
 def write_rinex_nav(path: str | Path, nav: pd.DataFrame, *, leap_seconds: int | None = None,
                     comments=(), created: str | None = None) -> dict:
-    """Write broadcast ephemerides (GPS, Galileo, BeiDou Kepler records) as a RINEX 3.04 navigation file.
+    """Write broadcast ephemerides (GPS, Galileo, BeiDou, QZSS Kepler records) as a RINEX 3.04 navigation file.
 
     Parameters
     ----------
@@ -354,6 +354,8 @@ def write_rinex_nav(path: str | Path, nav: pd.DataFrame, *, leap_seconds: int | 
         bds = str(rr["sat"]).startswith("C")
         lines_ = _BEIDOU_ORBIT_LINES if bds else _ORBIT_LINES
         rr["_blank"] = math.nan
+        if str(rr["sat"]).startswith("J"):       # QZSS: RINEX 3 holds the fit-interval flag (0: 2 h, 1: longer)
+            rr["fit_interval_h"] = 0.0 if rr["fit_interval_h"] == 2.0 else 1.0
         # BeiDou: the epoch of toc in BDT (GPST − 14 s), as read_rinex_nav expects
         y, mo, d, hh, mi, sec = rinex_calendar(rr["toc_gps_s"] - (GPS_MINUS_BDT_S if bds else 0.0))
         if abs(sec - round(sec)) > 1e-6:

@@ -793,10 +793,11 @@ def _stateful_mask(x: np.ndarray, off: np.ndarray, end: np.ndarray, week_ref: in
     glo = valid & (gnss == 6) & glonass
     other = valid & ~gal_other & ~gal_kept & ~bds & ~glo & (gnss != 0) & (gnss != 5)
     gps = valid & ((gnss == 0) | (gnss == 5)) & (nw == 10)
+    qzss_other = valid & (gnss == 5) & ((nw != 10) | (sig != 0))          # L1S (9 words), L2C, L5: not LNAV
     stats["galileo_other_frames"] += int(gal_other.sum())
     stats["beidou_cnav_frames"] += int((bds & (nw != 10)).sum())
     stats["gps_cnav_frames"] += int((gps & (gnss == 0) & (sig != 0)).sum())
-    stats["qzss_cnav_frames"] += int((gps & (gnss == 5) & (sig != 0)).sum())
+    stats["qzss_cnav_frames"] += int(qzss_other.sum())
     if other.any():
         codes, first, count = np.unique(gnss[other], return_index=True, return_counts=True)
         for k in np.argsort(first, kind="stable").tolist():       # in order of first appearance
@@ -846,7 +847,7 @@ def sfrbx_ephemerides(frames: list, week_ref: int | None, *, glonass: bool = Fal
         ``beidou_d2_pages`` (D2 subframe-1 pages 1–10 kept),
         ``beidou_cnav_frames`` (not ten words: B1C/B2a/B2b, not decoded), ``gps_cnav_frames``
         (sigId ≠ 0: L2C/L5, not decoded), ``qzss_subframes`` (QZSS LNAV 1–3 decoded: gnssId 5, as GPS),
-        ``qzss_cnav_frames`` (QZSS sigId ≠ 0, not decoded), ``glonass_strings``, ``glonass_hamming_failures``,
+        ``qzss_cnav_frames`` (QZSS frames other than L1 C/A LNAV — L1S, L2C, L5 —, not decoded), ``glonass_strings``, ``glonass_hamming_failures``,
         ``glonass_unknown_slot`` (with ``glonass``), ``other_systems`` (gnssId → frames: not decoded
         here), ``ephemerides``.
     """

@@ -581,7 +581,7 @@ def _signal_slots(run, mapping: dict, rover_ants: list, xm: np.ndarray, say, ini
 
     c = run.cfg
     if any(g.startswith("R:") for g in c.signals):
-        raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo, BeiDou); GLONASS (FDMA) is not supported")
+        raise CdgpsError("the modal structure path takes CDMA signals only (GPS, Galileo, BeiDou, QZSS); GLONASS (FDMA) is not supported")
     geo_m = receiver_geometry(signal_obs(run_receiver(run, run.master)), run.nav, xm)
     tabs, slot_ants = [], []
     for a in rover_ants:

@@ -144,8 +144,8 @@ def _window_errors(opt: dict) -> list:
                               or not np.isfinite(v)):
             bad.append(f"{key}: expected a GPS time in seconds or None, got {v!r}")
     if not bad and None not in (opt["start_gps_s"], opt["end_gps_s"]) and opt["start_gps_s"] > opt["end_gps_s"]:
-        bad.append(f"end_gps_s: expected at or after start_gps_s ({gps_time_str(opt['start_gps_s'])}), got "
-                   f"{gps_time_str(opt['end_gps_s'])}")
+        bad.append(f"end_gps_s (--end-time): expected at or after start_gps_s (--start-time, "
+                   f"{gps_time_str(opt['start_gps_s'])}), got {gps_time_str(opt['end_gps_s'])}")
     return bad
 
 
@@ -153,27 +153,42 @@ def _window_errors(opt: dict) -> list:
 OUTSIDE_WINDOW = "outside the time window asked for (--start-time / --end-time)"
 
 
-def _time_window(b: pd.DataFrame, r: pd.DataFrame, opt: dict, base_path, rover_path) -> tuple:
-    """The base and rover tables cut to the options' window (``start_gps_s`` … ``end_gps_s``, the rover's epochs; the
-    base's ``max_age_s`` + ``sync_tol_s`` wider on each side) and the number of rover epochs left out; the same
-    tables and 0 without one.  CdgpsError naming the rover's span when no rover epoch is inside."""
+def _in_window(t: np.ndarray, lo: float, hi: float, tol: float) -> np.ndarray:
+    """Which time tags ``t`` are in the window [``lo``, ``hi``] as RTKLIB's ``-ts``/``-te`` take it: at most ``tol``
+    before its start, less than ``tol`` after its end (a tag at .998 s or .999 s belongs to the next second)."""
+    return (t - lo >= -tol) & (t - hi < tol)
+
+
+def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_path, rover_path) -> tuple:
+    """The base and rover tables cut to the options' window (``start_gps_s`` … ``end_gps_s``, the rover's epochs within
+    ``sync_tol_s`` as :func:`_in_window` takes them; the base's ``max_age_s`` wider on each side), the rover's header
+    with its file's epochs outside the window taken out of ``file_epochs``, and how many those are (of the file's
+    epochs when its header lists them, ``file_epoch_times``; else of the table's); the same tables and 0 without a
+    window.  CdgpsError naming the rover's span when no rover epoch is inside, and the base's when no base epoch is
+    within ``max_age_s`` of it."""
     lo, hi = opt["start_gps_s"], opt["end_gps_s"]
     if lo is None and hi is None:
-        return b, r, 0
+        return b, r, hr, 0
     lo, hi = -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
-    tr = r["time_gps_s"].to_numpy()
-    keep = (tr >= lo - 1e-6) & (tr <= hi + 1e-6)
-    if not keep.any():
-        span = time_span(tr)
-        has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
-        want = " – ".join(gps_time_str(v) if np.isfinite(v) else "its end" for v in (lo, hi))
-        raise CdgpsError(f"{rover_path} (rover): no epoch in the window asked for ({want}: --start-time / --end-time); "
-                         f"its epochs span {has}")
-    margin = float(opt["max_age_s"]) + float(opt["sync_tol_s"])
-    tb = b["time_gps_s"].to_numpy()
-    kb = (tb >= lo - margin) & (tb <= hi + margin)
-    n_outside = int(distinct_times(tr).size - distinct_times(tr[keep]).size)
-    return b[kb].reset_index(drop=True), r[keep].reset_index(drop=True), n_outside
+    tol, tr = float(opt["sync_tol_s"]), r["time_gps_s"].to_numpy()
+    want = f"{gps_time_str(lo) if np.isfinite(lo) else 'its start'} – {gps_time_str(hi) if np.isfinite(hi) else 'its end'}"
+    keep = _in_window(tr, lo, hi, tol)
+    for df, k, path, who in ((r, keep, rover_path, "rover"), (b, None, base_path, "base")):
+        if k is None:                       # the base: where the window's epochs find their pairs and bridges
+            tb = b["time_gps_s"].to_numpy()
+            k = kb = _in_window(tb, lo - float(opt["max_age_s"]), hi + float(opt["max_age_s"]), tol)
+        if not k.any():
+            span = time_span(df["time_gps_s"].to_numpy())
+            has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
+            near = "" if who == "rover" else f" or within max_age_s ({float(opt['max_age_s']):g} s) of it"
+            raise CdgpsError(f"{path} ({who}): no epoch in the window asked for{near} ({want}: --start-time / "
+                             f"--end-time); its epochs span {has}")
+    listed = hr.get("file_epoch_times")
+    all_t = distinct_times(tr) if listed is None else np.asarray(listed.t, dtype=np.float64)
+    n_outside = int(np.sum(~_in_window(all_t, lo, hi, tol)))
+    if hr.get("file_epochs") is not None:        # (counted apart, not as epochs without a phase)
+        hr = {**hr, "file_epochs": int(hr["file_epochs"]) - n_outside}
+    return b[kb].reset_index(drop=True), r[keep].reset_index(drop=True), hr, n_outside
 
 
 def _holds_none_of(exc: CdgpsError) -> bool:
@@ -317,9 +332,7 @@ def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
              if "glonass_k" in nav.columns else {})
     hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings)
     hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings)
-    b, r, n_outside = _time_window(b, r, opt, base_path, rover_path)
-    if n_outside and hr.get("file_epochs") is not None:        # (counted apart, not as epochs without a phase)
-        hr = {**hr, "file_epochs": int(hr["file_epochs"]) - n_outside}
+    b, r, hr, n_outside = _time_window(b, r, hr, opt, base_path, rover_path)
     _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
         raise nav_error
@@ -894,17 +907,21 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[
                         f"joined again")
     warnings.extend(said + report.warnings)
     tab.attrs = {}
-    return {**reads[order[0]][0], "file_epochs": _joined_file_epochs([h for h, _ in reads])}, tab
+    joined = _joined_file_epochs([h for h, _ in reads])
+    return {**reads[order[0]][0], "file_epochs": None if joined is None else int(joined.t.size),
+            "file_epoch_times": joined}, tab
 
 
-def _joined_file_epochs(headers: list) -> int | None:
-    """The observation epochs of consecutive files joined: the union of each file's epochs (``file_epoch_times``,
-    those without a phase of the signals used too: an epoch two files both hold counts once); None when a file's
-    are not known."""
+def _joined_file_epochs(headers: list):
+    """The observation epochs of consecutive files joined (:class:`~cdgps_cli.io.rinex_signals.EpochTimes`): the union
+    of each file's epochs (``file_epoch_times``, those without a phase of the signals used too: an epoch two files
+    both hold counts once); None when a file's are not known."""
+    from cdgps_cli.io.rinex_signals import EpochTimes  # noqa: PLC0415
+
     times = [h.get("file_epoch_times") for h in headers]
     if any(t is None for t in times):
         return None
-    return int(np.unique(np.concatenate([t.t for t in times])).size)
+    return EpochTimes(np.unique(np.concatenate([t.t for t in times])))
 
 
 def _ubx_stream(files: list, sigs, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
@@ -1047,7 +1064,8 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     held = {n: set().union(*(_ubx_signals(p) if is_ubx_log(p) else signals_in_file(p) for p in fs))
             for n, fs in files.items()}
     every = [s for s in SIGNALS if signal(s).system in AUTO_SYSTEMS and all(s in h for h in held.values())]
-    systems = sorted({signal(s).system for s in every if signal(s).system in NAV_SYSTEMS})
+    qzss = [s for s in SIGNALS if s.startswith("J:") and all(s in h for h in held.values())]
+    systems = sorted({signal(s).system for s in every + qzss if signal(s).system in NAV_SYSTEMS})
     have = set()
     for p in nav_paths:
         try:
@@ -1064,7 +1082,7 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     source = (', '.join(map(str, nav_paths)) if nav_paths else
               "the RXM-SFRBX frames of the u-blox logs (no --nav given)"
               if any(is_ubx_log(p) for p in all_files) else "any file (no --nav given)")
-    warnings += _unprocessed_systems_note(files) + _qzss_left_out_note(held)
+    warnings += _unprocessed_systems_note(files) + _qzss_left_out_note(qzss, len(files), "J" in have, source)
     if lost:
         warnings.append(f"signals of {', '.join(SYSTEM_NAMES.get(c, c) for c in lost)} held by "
                         f"{'both files' if len(files) == 2 else 'every receiver'} are not used: no ephemerides for "
@@ -1077,14 +1095,16 @@ def common_signals(receivers: dict, nav_paths, warnings: list) -> list[str]:
     return use
 
 
-def _qzss_left_out_note(held: dict) -> list:
-    """A note naming the QZSS signals every receiver holds (``held``: receiver → its signal names), which ``auto``
-    leaves out (:data:`~cdgps_cli.core.signals.AUTO_SYSTEMS`), and how to use them."""
-    common = [s for s in SIGNALS if s.startswith("J:") and all(s in h for h in held.values())]
-    if not common:
+def _qzss_left_out_note(qzss: list, n_receivers: int, have_ephemerides: bool, source: str) -> list:
+    """A note naming the QZSS signals every receiver holds (``qzss``), which ``auto`` leaves out
+    (:data:`~cdgps_cli.core.signals.AUTO_SYSTEMS`), and how to use them — or that the navigation data (``source``)
+    have no QZSS ephemerides for them."""
+    if not qzss:
         return []
-    return [f"QZSS signals held by {'both files' if len(held) == 2 else 'every receiver'} ({', '.join(common)}) are "
-            f"left out by --signals auto: name them (--signals, [gnss] signals) to use them"]
+    held = f"QZSS signals held by {'both files' if n_receivers == 2 else 'every receiver'} ({', '.join(qzss)})"
+    if not have_ephemerides:
+        return [f"{held} are not used: no QZSS ephemerides in {source}"]
+    return [f"{held} are left out by --signals auto: name them (--signals, [gnss] signals) to use them"]
 
 
 def _unprocessed_systems_note(files: dict) -> list:

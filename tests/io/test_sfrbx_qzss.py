@@ -77,13 +77,30 @@ def test_the_real_mosaic_pairs_qzss_records_are_usable():
     assert (nav["fit_interval_h"] == 2.0).all()                              # the files' flag 0
 
 
+def test_qzss_records_written_and_read_again_are_the_same(tmp_path):
+    if not MOSAIC_NAV.exists():
+        import pytest
+
+        pytest.skip("../shared/data/real-pairs absent")
+    from cdgps_cli.io.rinex_write import write_rinex_nav
+
+    nav = read_rinex_nav(MOSAIC_NAV, systems=("G", "J"))
+    write_rinex_nav(tmp_path / "x.rnx", nav)                  # (QZSS's fit interval written back as its flag)
+    assert "J02 2024 06 24 09 00 00" in (tmp_path / "x.rnx").read_text()
+    back = read_rinex_nav(tmp_path / "x.rnx", systems=("G", "J"))
+    cols = [c for c in nav.columns if c != "line"]
+    assert nav[cols].reset_index(drop=True).equals(back[cols].reset_index(drop=True))
+
+
 def test_the_real_f9p_logs_qzss_ephemerides_explain_its_qzss_pseudoranges():
     from cdgps_cli.estimation.rtk_multi import receiver_geometry
     from cdgps_cli.io.ubx import read_ubx_log, read_ubx_signals
     from cdgps_cli.model.gps.positioning import spp_spread
 
     info, _, nav = read_ubx_log(F9P_HIROSHIMA)
-    assert info["sfrbx"]["qzss_subframes"] == 16 and info["sfrbx"]["parity_failures"] == 0
+    st = info["sfrbx"]                       # 12 L2C frames and 148 L1S frames (nine words) counted, not decoded
+    assert st["qzss_subframes"] == 16 and st["qzss_cnav_frames"] == 160 and st["parity_failures"] == 0
+    assert "5" not in st["other_systems"]
     qzss = nav[nav["sat"].str.startswith("J")]
     assert qzss["sat"].tolist() == ["J02", "J03", "J04", "J07"] and (qzss["sv_health"] == 0).all()
     assert (np.abs(qzss["sqrt_a_sqrt_m"] ** 2 - 42_164e3) < 100e3).all()          # IGSO / GEO semi-major axes

@@ -129,7 +129,7 @@ def test_sfrbx_counters_from_headers(log):
     """Every kind of frame the decoder only counts, mixed with the real log's, counted as one by one."""
     _, frames = log
     extra = [_sfrbx(2, 5, 3, 8), _sfrbx(2, 5, 1, 9), _sfrbx(3, 20, 0, 9), _sfrbx(0, 7, 3, 10), _sfrbx(0, 7, 0, 8),
-             _sfrbx(1, 131, 0, 8), _sfrbx(5, 2, 0, 10), _sfrbx(6, 3, 0, 4), _sfrbx(0, 7, 0, 10, 9),
+             _sfrbx(1, 131, 0, 8), _sfrbx(5, 2, 0, 10), _sfrbx(5, 3, 1, 9), _sfrbx(6, 3, 0, 4), _sfrbx(0, 7, 0, 10, 9),
              _sfrbx(2, 5, 1, 8)]
     mixed = frames[:40] + extra + frames[40:] + extra[::-1]
     for week in (None, 2381):
@@ -150,10 +150,12 @@ def test_sfrbx_counters_from_headers(log):
                     ref["beidou_cnav_frames"] += w != 10
                 elif g == 6 and glonass:
                     pass
-                elif g not in (0, 5):
+                elif g == 5:
+                    ref["qzss_cnav_frames"] += w != 10 or s != 0
+                elif g != 0:
                     ref["other_systems"][str(g)] = ref["other_systems"].get(str(g), 0) + 1
                 elif w == 10 and s != 0:
-                    ref["gps_cnav_frames" if g == 0 else "qzss_cnav_frames"] += 1
+                    ref["gps_cnav_frames"] += 1
             assert {k: stats[k] for k in ref} == ref
             assert list(stats["other_systems"]) == list(ref["other_systems"])    # order of first appearance
             assert stats["sfrbx_frames"] == sum(c == 2 and m in (0x13, 0x11) for _, c, m, _ in mixed)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from cdgps_cli.core.errors import CdgpsError
@@ -27,11 +28,47 @@ def test_gps_times_in_rtklib_and_iso_forms():
     for text in ("2021/09/22 06:35:12", "2021-09-22T06:35:12", "2021-09-22 06:35:12", " 2021/09/22 06:35:12.0 "):
         assert parse_gps_time(text, "--x") == t
     assert parse_gps_time("2021/09/22 06:35:12.25", "--x") == t + 0.25
-    assert parse_gps_time("2021-09-22", "--x") == gps_seconds(2021, 9, 22)
+    assert parse_gps_time("2021/09/22 06:35:12.123456789", "--x") == t + 0.123456789
     assert parse_gps_time("2021/09/22 06:35", "--x") == t - 12
-    for bad in ("06:35:12", "2021/13/22 06:35:12", "2021/09/22 06:35:12.x", "yesterday", ""):
+    for bad in ("06:35:12", "2021/13/22 06:35:12", "2021/09/22 06:35:12.x", "2021/09/22 06:35:12.5.5", "yesterday", "",
+                "2021-09-22", "2021/09/22 06:35:12.\u00b2", "2021/09/22 06:35:12.\u0665", "2021/9/22 06:35:12",
+                "2021/09-22 06:35:12", "2021/09/22 24:00:00", "2021/09/22 06:35:60"):
         with pytest.raises(CdgpsError, match="--x expects a GPS date and time"):
             parse_gps_time(bad, "--x")
+    with pytest.raises(CdgpsError, match="before GPS time began"):
+        parse_gps_time("1979/12/31 23:59:59", "--x")
+
+
+def test_the_window_takes_tags_as_rtklib_does_and_counts_every_file_epoch_outside():
+    """RTKLIB keeps an epoch at most DTTOL (25 ms) before -ts and less than DTTOL after -te: u-blox tags 2 ms before
+    the second belong to it.  The epochs of the file outside the window are counted as such, those without a phase
+    among them too (not as epochs without a phase)."""
+    from cdgps_cli.io.rinex_signals import EpochTimes
+    from cdgps_cli.pipeline.gnss_multi import _time_window, validate_options
+
+    t0 = gps_seconds(2021, 9, 22, 6, 35, 0)
+    tags = t0 + np.arange(30) - 0.002
+    r = pd.DataFrame({"time_gps_s": tags, "sat": "G01"})
+    b = pd.DataFrame({"time_gps_s": t0 + np.arange(0, 30, 5.0), "sat": "G01"})
+    code_only = t0 + np.array([0.5, 13.5])                     # two epochs of the file without a phase
+    hr = {"file_epochs": 32, "file_epoch_times": EpochTimes(np.sort(np.r_[tags, code_only]))}
+    opt = validate_options({"start_gps_s": t0 + 12, "end_gps_s": t0 + 20, "max_age_s": 4.0})
+    b2, r2, hr2, n_out = _time_window(b, r, hr, opt, "base.obs", "rover.obs")
+    assert r2["time_gps_s"].tolist() == (tags[12:21]).tolist()          # 06:35:11.998 … 06:35:19.998: 9 epochs
+    assert b2["time_gps_s"].tolist() == (t0 + np.array([10.0, 15.0, 20.0])).tolist()
+    assert n_out == 32 - 9 - 1 and hr2["file_epochs"] == 10               # 13.5 s is inside: left without a phase
+    opt = validate_options({"start_gps_s": t0 + 100, "max_age_s": 4.0})
+    with pytest.raises(CdgpsError, match=r"rover.obs \(rover\): no epoch in the window asked for \(2021-09-22 "
+                                         r"06:36:40 GPST – its end"):
+        _time_window(b, r, hr, opt, "base.obs", "rover.obs")
+    opt = validate_options({"end_gps_s": t0 - 100, "max_age_s": 4.0})
+    with pytest.raises(CdgpsError, match="window asked for \\(its start – 2021-09-22 06:33:20 GPST"):
+        _time_window(b, r, hr, opt, "base.obs", "rover.obs")
+    opt = validate_options({"start_gps_s": t0 + 26.5, "max_age_s": 1.0})
+    with pytest.raises(CdgpsError, match=r"base.obs \(base\): no epoch in the window asked for or within max_age_s "
+                                         r"\(1 s\) of it .*its epochs span 2021-09-22 06:35:00 GPST – 2021-09-22 "
+                                         r"06:35:25 GPST"):
+        _time_window(b, r, hr, opt, "base.obs", "rover.obs")
 
 
 def _rtk(tmp_path, *extra, base="3034265G.21O", rover="SEPT265G.21O"):
@@ -72,8 +109,11 @@ def test_the_car_end_segment_by_window_equals_it_cut_by_hand(tmp_path):
 @pytest.mark.parametrize("args, said", [
     (("--start-time", "2021/09/22 25:00:00"), "--start-time expects a GPS date and time"),
     (("--end-time", "06:35"), "--end-time expects a GPS date and time"),
-    (("--start-time", "2021/09/23"), "no epoch in the window asked for (2021-09-23 00:00:00 GPST – its end"),
-    (("--start-time", "2021/09/22 07:00", "--end-time", "2021/09/22 06:00"), "end_gps_s: expected at or after"),
+    (("--start-time", "2021/09/23 00:00"), "no epoch in the window asked for (2021-09-23 00:00:00 GPST – its end"),
+    (("--start-time", "2021/09/22"), "--start-time expects a GPS date and time"),
+    (("--start-time", "2021/09/22 07:00", "--end-time", "2021/09/22 06:00"),
+     "end_gps_s (--end-time): expected at or after start_gps_s (--start-time"),
+    (("--end-time", "2021/09/21 00:00"), "no epoch in the window asked for (its start – 2021-09-21 00:00:00 GPST"),
 ])
 def test_a_bad_window_is_refused_naming_it(tmp_path, args, said):
     out = tmp_path / "x.pos"

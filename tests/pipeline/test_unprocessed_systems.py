@@ -47,3 +47,18 @@ def test_rtk_and_config_name_the_qzss_auto_leaves_out(tmp_path):
     r = run_cli("config", "--rinex", f"base={CAR / '3034265G.21O'}", "--rinex", f"rover={CAR / 'SEPT265G.21O'}",
                 "--nav", CAR / "SEPT2650.21P", "--master", "base", "-o", tmp_path / "c.toml")
     assert r.exit_code == 0 and note in r.output and '"J:L1"' not in (tmp_path / "c.toml").read_text()
+
+
+def test_qzss_without_ephemerides_is_said_so(tmp_path):
+    if not CAR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    from cdgps_cli.io.rinex import read_rinex_nav
+    from cdgps_cli.io.rinex_write import write_rinex_nav
+
+    nav = tmp_path / "ge.rnx"                              # the car's navigation file without its QZSS records
+    write_rinex_nav(nav, read_rinex_nav(CAR / "SEPT2650.21P", systems=("G", "E")))
+    r = run_cli("rtk", "--base", CAR / "3034265G.21O", "--rover", CAR / "SEPT265G.21O", "--nav", nav,
+                "--signals", "auto", "-o", tmp_path / "car.pos", "--json")
+    assert r.exit_code == 0, r.output
+    note = f"QZSS signals held by both files (J:L1, J:L2, J:L5) are not used: no QZSS ephemerides in {nav}"
+    assert note in json.loads(r.stdout)["warnings"]
