@@ -515,6 +515,15 @@ def _partial_ratio_note(q, ratio, opt: dict) -> list:
             f"(combined); Q says whether the position is fixed"]
 
 
+def _window_text(opt: dict) -> str:
+    """The rover epochs asked for (``start_gps_s`` / ``end_gps_s``) as a solution header says them; "" without."""
+    lo, hi = opt.get("start_gps_s"), opt.get("end_gps_s")
+    if lo is None and hi is None:
+        return ""
+    return (f", rover epochs {'its first' if lo is None else gps_time_str(lo)} – "
+            f"{'its last' if hi is None else gps_time_str(hi)} (--start-time / --end-time)")
+
+
 def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) -> str:
     """The solution as the text of the format ``out_path``'s suffix names (:data:`OUTPUT_FORMATS`;
     any other suffix: CSV).  CSV columns: ``time_gps_s, x_m, y_m, z_m, fixed, n_dd_ambiguities, ratio,
@@ -533,7 +542,8 @@ def solution_text(res: dict, sigs, opt: dict, out_path, base_xyz, *, inputs=()) 
             f"signals {' '.join(sigs)}, mask {opt['mask_deg']:g} deg, "
             f"ratio {opt['ratio']:g}, max age {opt['max_age_s']:g} s, ionosphere {res['iono_model']}"
             + (", zenith wet delays estimated" if res["wet_troposphere"]["model"] == "estimated" else "")
-            + (f", receiver antenna models from {opt['antex']}" if opt.get("antex") else ""))
+            + (f", receiver antenna models from {opt['antex']}" if opt.get("antex") else "")
+            + _window_text(opt))
     if suffix == ".pos":
         bl, bo, bh = ecef_to_geodetic(np.asarray(base_xyz, float))
         ref = (" ".join(f"{v:.4f}" for v in np.asarray(base_xyz, float)) if opt["pos_frame"] == "xyz"   # as RTKLIB's

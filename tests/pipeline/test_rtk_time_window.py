@@ -102,6 +102,8 @@ def test_the_car_end_segment_by_window_equals_it_cut_by_hand(tmp_path):
     assert r.exit_code == 0, r.output
     (a, qa), (b, qb) = _last(tmp_path / "window.pos"), _last(tmp_path / "cut.pos")
     assert qa == qb == 1 and np.abs(a - b).max() < 1e-4, (a, b)
+    assert ("rover epochs 2021-09-22 06:35:12 GPST – 2021-09-22 06:35:59 GPST (--start-time / --end-time)"
+            in (tmp_path / "window.pos").read_text().splitlines()[0])
     assert np.abs(a - np.array([5049.078, 1691.873, -1.356])).max() < 0.002     # RTKLIB's G+E+J L1 static
 
 
