@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from cdgps_cli.core.constants import SPEED_OF_LIGHT_M_S
 
-__all__ = ["Signal", "SIGNALS", "SYSTEM_NAMES", "AUTO_SYSTEMS", "OTHER_SYSTEM_NAMES", "signal", "wavelength_m", "glonass_frequency_hz", "anchor_signal"]
+__all__ = ["Signal", "SIGNALS", "SYSTEM_NAMES", "AUTO_SYSTEMS", "OTHER_SYSTEM_NAMES", "common_attributes", "signal", "wavelength_m", "glonass_frequency_hz", "anchor_signal"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,13 @@ class Signal:
     pseudorange is the first candidate it fills."""
     fdma_step_hz: float = 0.0
     """GLONASS channel spacing Δf, Hz (0 for CDMA)."""
+    families: tuple = ()
+    """The ``attributes`` grouped by the signal they track on this carrier (GPS L2: L2C ``SLX``, P(Y) ``WPYD``…):
+    receivers tracking one family see the same satellite biases, two families do not; () — one family."""
+
+    def family(self, attribute: str) -> str:
+        """The attributes of the family ``attribute`` belongs to (all of them when the carrier has one)."""
+        return next((f for f in self.families if attribute in f), self.attributes)
 
     @property
     def wavelength_m(self) -> float:
@@ -49,8 +56,8 @@ class Signal:
 
 _F0 = 10.23e6
 SIGNALS = {s.name: s for s in (
-    Signal("G:L1", "G", "1", "CSLXPWYM", 154 * _F0, ("L1", "C1", "P1")),
-    Signal("G:L2", "G", "2", "XLSCWPYDM", 120 * _F0, ("L2", "P2", "C2")),
+    Signal("G:L1", "G", "1", "CSLXPWYM", 154 * _F0, ("L1", "C1", "P1"), families=("C", "SLX", "PWY", "M")),
+    Signal("G:L2", "G", "2", "XLSCWPYDM", 120 * _F0, ("L2", "P2", "C2"), families=("XLS", "C", "WPYD", "M")),
     Signal("G:L5", "G", "5", "QIX", 115 * _F0, ("L5", "C5")),
     Signal("E:E1", "E", "1", "CBX", 154 * _F0, ("L1", "C1")),
     Signal("E:E5a", "E", "5", "QIX", 115 * _F0, ("L5", "C5")),
@@ -58,11 +65,11 @@ SIGNALS = {s.name: s for s in (
     Signal("C:B1I", "C", "2", "IQX", 152.6 * _F0),
     Signal("C:B2I", "C", "7", "IQX", 118 * _F0),
     Signal("C:B2a", "C", "5", "PDX", 115 * _F0),
-    Signal("J:L1", "J", "1", "CSLXZ", 154 * _F0),
+    Signal("J:L1", "J", "1", "CSLXZ", 154 * _F0, families=("C", "SLX", "Z")),
     Signal("J:L2", "J", "2", "LSX", 120 * _F0),
     Signal("J:L5", "J", "5", "QIX", 115 * _F0),
-    Signal("R:G1", "R", "1", "CP", 1602.0e6, ("L1", "C1", "P1"), 0.5625e6),
-    Signal("R:G2", "R", "2", "CP", 1246.0e6, ("L2", "P2", "C2"), 0.4375e6),
+    Signal("R:G1", "R", "1", "CP", 1602.0e6, ("L1", "C1", "P1"), 0.5625e6, families=("C", "P")),
+    Signal("R:G2", "R", "2", "CP", 1246.0e6, ("L2", "P2", "C2"), 0.4375e6, families=("C", "P")),
 )}
 """Every supported signal by name."""
 
@@ -78,6 +85,26 @@ own per signal), but ``auto`` leaves it out, and says so: on the real car pair o
 5.3 km away, 4 QZSS satellites in view) every signal with QZSS fixed 144 of 360 epochs instead of 359 — its J03,
 at 15–16° behind the car's obstructions, slipped unflagged 20 times in 6 min on L5 and 15 on L2 — while on the
 two static real pairs that hold QZSS it changed no fix (docs/gnss-pipeline.md, "QZSS")."""
+
+
+def common_attributes(name: str, held: dict) -> tuple[dict, bool]:
+    """The tracking attribute each receiver's phase of signal ``name`` is read with, one family for all of them.
+
+    ``held``: receiver → the attributes of ``name`` its observation types list (None: not known, a RINEX 2 file or a
+    u-blox log of one family, taken as holding any).  The first family (in the order of ``attributes``) every
+    receiver holds is chosen, each receiver taking its own first attribute of it: a base holding L2C and P(Y) against
+    a rover holding P(Y) alone reads P(Y) too, so each satellite's L2C/P(Y) bias — which does not cancel between two
+    receivers tracking different signals — is not in its double differences (RTKLIB's code priorities take P(Y)
+    first). Returns ({receiver: attribute or None}, whether one family serves them all); with none common each
+    receiver takes its own first attribute, as before."""
+    sig = signal(name)
+    known = {rx: a for rx, a in held.items() if a is not None}
+    fams = sorted(sig.families or (sig.attributes,), key=lambda f: min(sig.attributes.index(c) for c in f))
+    for fam in fams:
+        picks = {rx: next((c for c in sig.attributes if c in fam and c in a), None) for rx, a in known.items()}
+        if all(v is not None for v in picks.values()):
+            return {rx: picks.get(rx) for rx in held}, True
+    return {rx: (None if a is None else next((c for c in sig.attributes if c in a), None)) for rx, a in held.items()}, False
 
 
 def signal(name: str) -> Signal:

@@ -37,7 +37,7 @@ from cdgps_cli.io import gnss_run as g
 from cdgps_cli.io.log_sequence import expand_paths
 from cdgps_cli.io.rinex import read_rinex_obs
 from cdgps_cli.io.rinex_hours import NotCut, check_block, join_obs_headers, rinex_hours
-from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS, first_of_repeated_epochs, read_rinex_signals
+from cdgps_cli.io.rinex_signals import SIGNAL_COLUMNS, first_of_repeated_epochs, read_rinex_signals, signal_attributes
 from cdgps_cli.io.ubx import UBX_OBS_COLUMNS, empty_signal_table, read_ubx_block, sfrbx_frames, sfrbx_of_blocks
 from cdgps_cli.io.ubx_frames import rtcm_station_arp
 from cdgps_cli.io.ubx_hours import check_ubx_block, join_ubx_infos, ubx_hours
@@ -229,6 +229,8 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
         for f, h in enumerate(cut):
             for j, (k, *_) in enumerate(h.blocks):
                 index[n].setdefault(k, []).append((f, j))
+    attrs, notes = signal_attributes({n: (_kind(hours[n]), hours[n][0].path) for n in names}, cfg.signals or ())
+    inp.warnings.extend(notes)
     codes = {n: new_codes() for n in names}
     thin = {n: [ThinTables(codes[n], ubx=_kind(hours[n]) == "ubx") for _ in hours[n]] for n in names}
     infos: dict = {n: [[] for _ in hours[n]] for n in names}
@@ -238,7 +240,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
     first: dict = {n: [] for n in names}         # each receiver's first epochs' raw rows, at full precision
     for k in keys:
         block = []
-        for n, parts in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k)):
+        for n, parts in zip(names, _read_blocks(cfg, hours, index, k, l1_opt, glonass_k, attrs)):
             for f, j, (raw, sig, info) in parts:
                 last[n] = _checked(hours[n][f], j, info, last[n], strict)
                 infos[n][f].append(info)
@@ -279,12 +281,14 @@ def _joined(parts: list) -> tuple:
     return raw, (None if sigs[0] is None else pd.concat(sigs, ignore_index=True))
 
 
-def _read_blocks(cfg: GnssConfig, hours: dict, index: dict, k: int, l1_opt: bool, glonass_k: dict) -> list:
+def _read_blocks(cfg: GnssConfig, hours: dict, index: dict, k: int, l1_opt: bool, glonass_k: dict,
+                 attrs: dict | None = None) -> list:
     """Each receiver's parts of block ``k``: [(file, block, (raw, signals, header summary))] (:func:`_read_block`;
     none where it has no epoch in it), the first receiver's read beside the others'
     (:func:`cdgps_cli.core.beside.both`: on a second core, the same tables bit for bit)."""
     def read(n):
-        return [(f, j, _read_block(cfg, hours[n][f], j, l1_opt, glonass_k)) for f, j in index[n].get(k, [])]
+        return [(f, j, _read_block(cfg, hours[n][f], j, l1_opt, glonass_k, (attrs or {}).get(n)))
+                for f, j in index[n].get(k, [])]
 
     names = list(hours)
     if len(names) < 2:
@@ -293,7 +297,7 @@ def _read_blocks(cfg: GnssConfig, hours: dict, index: dict, k: int, l1_opt: bool
     return [first, *rest]
 
 
-def _read_block(cfg: GnssConfig, hours, j: int, l1_opt: bool, glonass_k: dict) -> tuple:
+def _read_block(cfg: GnssConfig, hours, j: int, l1_opt: bool, glonass_k: dict, attributes: dict | None = None) -> tuple:
     """(raw table, signal table or None, header summary) of block ``j`` of a file, read as a file of its own (a UBX
     log's: the summary of :func:`~cdgps_cli.io.ubx.read_ubx_block` but its tables)."""
     if hours.kind == "ubx":
@@ -306,7 +310,8 @@ def _read_block(cfg: GnssConfig, hours, j: int, l1_opt: bool, glonass_k: dict) -
     info, obs = read_rinex_obs(hours.path, gps_l1_optional=l1_opt, read=read)
     sig = None
     if cfg.signals:                  # an epoch's record written twice: its first (as the whole reading keeps)
-        sig = first_of_repeated_epochs(read_rinex_signals(hours.path, cfg.signals, glonass_k, read=read)[1])[0]
+        sig = first_of_repeated_epochs(read_rinex_signals(hours.path, cfg.signals, glonass_k, read=read,
+                                                          attributes=attributes)[1])[0]
     return g._raw_from_rinex(obs), sig, info
 
 

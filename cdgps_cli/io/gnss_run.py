@@ -535,10 +535,14 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
     signal asked for).  ``glonass_k``: GLONASS frequency numbers of the navigation records, for
     RINEX files whose header lacks ``GLONASS SLOT / FRQ #`` (UBX logs carry freqId)."""
     from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, glonass_without_frequency_text,  # noqa: PLC0415
-                                            read_rinex_signals)
+                                            read_rinex_signals, signal_attributes)
     from cdgps_cli.io.ubx import read_ubx_signals  # noqa: PLC0415
 
     glonass_k = dict(glonass_k or {})
+    attrs, notes = signal_attributes({n: (files[n][0], ((pieces or {}).get(n) or [files[n][1]])[0]) for n in receivers},
+                                     signals)
+    if warnings is not None:
+        warnings.extend(notes)
     order = sorted(receivers, key=lambda n: files[n][0] != "ubx")      # u-blox logs first: their GLONASS numbers
     for n in order:
         rx = receivers[n]
@@ -552,8 +556,8 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
             tabs, paths = [read_ubx_signals(pieces_text(paths), signals,
                                             data=b"".join(ubx_bytes(q) for q in paths))], [pieces_text(paths)]
         else:
-            tabs = [read_ubx_signals(q, signals) if kind == "ubx" else read_rinex_signals(q, signals, glonass_k)[1]
-                    for q in paths]
+            tabs = [read_ubx_signals(q, signals) if kind == "ubx"
+                    else read_rinex_signals(q, signals, glonass_k, attributes=attrs[n])[1] for q in paths]
         if kind == "ubx":             # RXM-RAWX's freqId: the numbers a RINEX file without its slots needs
             for t in tabs:
                 for sat, k in glonass_numbers(t).items():

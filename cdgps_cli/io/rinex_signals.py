@@ -28,7 +28,7 @@ from cdgps_cli.io.rinex import _as_path, _frame, _noting_end_padding, _read_byte
 from cdgps_cli.io import rinex_body
 from cdgps_cli.io.rinex_body import BodyLines, distinct, epochs_v3, strict_float
 
-__all__ = ["read_rinex_signals", "SIGNAL_COLUMNS", "first_of_repeated_epochs", "repeated_epochs_text",
+__all__ = ["phase_attributes_in_file", "signal_attributes", "read_rinex_signals", "SIGNAL_COLUMNS", "first_of_repeated_epochs", "repeated_epochs_text",
            "out_of_order_text", "glonass_without_frequency_text"]
 
 SIGNAL_COLUMNS = ("time_gps_s", "sat", "signal", "phase_cycles", "pseudorange_m", "lli", "wavelength_m")
@@ -76,17 +76,18 @@ class EpochTimes:
         self.t = t
 
 
-def _codes(types: list[str], name: str, v3: bool):
+def _codes(types: list[str], name: str, v3: bool, prefer: str | None = None):
     """(phase type, code type) of signal ``name`` among a system's ``types``, or None; RINEX 2: the code types
     after the first that ``types`` lists follow (a record's pseudorange is the first of them it fills: GLONASS L2
-    with C2 where a mixed file's P2, listed for GPS, is blank)."""
+    with C2 where a mixed file's P2, listed for GPS, is blank).  RINEX 3: the attribute ``prefer`` when the types
+    list its phase (:func:`~cdgps_cli.core.signals.common_attributes`), else the first of the signal's."""
     sig = signal(name)
     if not v3:
         if not sig.rinex2 or sig.rinex2[0] not in types:
             return None
         codes = [c for c in sig.rinex2[1:] if c in types]
         return (sig.rinex2[0], *codes) if codes else (sig.rinex2[0], None)
-    for a in sig.attributes:
+    for a in ((prefer,) if prefer and f"L{sig.band}{prefer}" in types else ()) + tuple(sig.attributes):
         if f"L{sig.band}{a}" in types:
             code = f"C{sig.band}{a}" if f"C{sig.band}{a}" in types else None
             return f"L{sig.band}{a}", code
@@ -111,7 +112,7 @@ def _glonass_slots(lines, end, path) -> dict:
     return out
 
 
-def _columns(hdr: _ObsHeader, names, path) -> dict:
+def _columns(hdr: _ObsHeader, names, path, attributes: dict | None = None) -> dict:
     """{signal: (system key, phase index, code index, (phase type, code type, further code types…), further code
     indices)} for the signals of the request (the further codes: RINEX 2's, a row's pseudorange the first of them it
     fills; the header's ``signal_codes`` lists them all)."""
@@ -124,7 +125,7 @@ def _columns(hdr: _ObsHeader, names, path) -> dict:
         types = hdr.info["obs_types"].get(key, [])
         if not v3 and (not sig.rinex2 or (sig.system == "E" and hdr.info["satellite_system"] not in ("M", "E"))):
             types = []                         # (RINEX 2.11 Galileo: in a mixed or a Galileo file only)
-        pc = _codes(types, name, v3)
+        pc = _codes(types, name, v3, (attributes or {}).get(name))
         if pc is None:
             missing.append(f"{name} ({SYSTEM_NAMES[sig.system]}: phase L{sig.band}{'/'.join(sig.attributes)}; "
                            f"the file has {' '.join(types) or 'no ' + SYSTEM_NAMES[sig.system] + ' types'})")
@@ -208,6 +209,43 @@ def signals_in_file(path: str | Path) -> list[str]:
     return out
 
 
+def phase_attributes_in_file(path: str | Path, signals) -> dict:
+    """{signal: the tracking attributes of its phase types that a RINEX 3 observation file's header lists (a string
+    of letters, "" for none)} for ``signals``; every value None for a RINEX 2 file (its ``L2`` may be either family)."""
+    _, hdr, _, _ = _observation_header(path)
+    out = {}
+    for name in signals:
+        sig = signal(name)
+        types = hdr.info["obs_types"].get(sig.system, []) if hdr.version >= 3 else None
+        out[name] = None if types is None else "".join(a for a in sig.attributes if f"L{sig.band}{a}" in types)
+    return out
+
+
+def signal_attributes(receivers: dict, signals) -> tuple[dict, list]:
+    """The attribute each receiver reads each RINEX 3 signal with: one family at every receiver
+    (:func:`~cdgps_cli.core.signals.common_attributes`).  ``receivers``: name → (kind, path), ``"rinex"`` or
+    ``"ubx"`` and its (first) file, whose header speaks for the receiver.  Returns ({receiver: {signal: attribute
+    or None}}, the warnings naming each signal whose receivers share no family: each satellite's bias between the
+    two signals stays in its double differences)."""
+    from cdgps_cli.core.signals import common_attributes  # noqa: PLC0415
+    from cdgps_cli.io.ubx import UBX_ATTRIBUTES  # noqa: PLC0415
+
+    held = {n: ({s: UBX_ATTRIBUTES.get(s) for s in signals} if kind == "ubx" else phase_attributes_in_file(p, signals))
+            for n, (kind, p) in receivers.items()}
+    out: dict = {n: {} for n in receivers}
+    warnings = []
+    for s in signals:
+        picks, one_family = common_attributes(s, {n: h.get(s) for n, h in held.items()})
+        for n, a in picks.items():
+            out[n][s] = a
+        if not one_family:
+            band = signal(s).band
+            warnings.append(f"{s}: the receivers track different signals on this carrier ("
+                            + ", ".join(f"{n} L{band}{a}" for n, a in picks.items() if a) + "): each satellite's "
+                            f"bias between the two stays in the double differences (centimetres, not cycles)")
+    return out, warnings
+
+
 def phase_systems_in_file(path: str | Path) -> set[str]:
     """The systems (RINEX letters) whose carrier phase a RINEX 3 observation file's header lists (``SYS / # / OBS
     TYPES`` with an ``L`` type); a RINEX 2 file: none (its types are not per system)."""
@@ -218,7 +256,7 @@ def phase_systems_in_file(path: str | Path) -> set[str]:
 
 
 def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
-                       read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
+                       read: tuple[bytes, bool] | None = None, attributes: dict | None = None) -> tuple[dict, pd.DataFrame]:
     """Read the phases and ranges of ``signals`` (e.g. ``["G:L1", "G:L2", "E:E1", "E:E5a"]``).
 
     Parameters
@@ -235,6 +273,9 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
     read : (bytes, bool), optional
         The file's (decompressed) bytes and whether it was compressed, when already at hand (an hour of a long
         file with its header: :mod:`cdgps_cli.io.rinex_hours`); ``path`` then only names it.
+    attributes : dict, optional
+        {signal: tracking attribute} to read a RINEX 3 signal's phase and code with, when the header lists it (the
+        attribute of one family at every receiver: :func:`signal_attributes`); else the first the header lists.
 
     Returns
     -------
@@ -257,11 +298,12 @@ def read_rinex_signals(path: str | Path, signals, glonass_k: dict | None = None,
     read = _read_bytes(p) if read is None else read
     if FAST_PARSE:
         try:
-            return _noting_end_padding(read[0], in_gps_time(*_read_bytes_v3(p, list(signals), glonass_k, read)))
+            return _noting_end_padding(read[0], in_gps_time(*_read_bytes_v3(p, list(signals), glonass_k, read,
+                                                                            attributes)))
         except Unsupported:
             pass
     lines, hdr, end, data = _observation_header(p, read)           # the bytes read (and decompressed) once
-    cols = _columns(hdr, list(signals), p)
+    cols = _columns(hdr, list(signals), p, attributes)
     slots = {**(glonass_k or {}), **_glonass_slots(lines, end, p)}
     df = _observations(lines, end + 1, hdr, cols, p, data, slots)
     info = dict(hdr.info)
@@ -280,7 +322,8 @@ def _rinex2_by_first_line(data: bytes) -> bool:
         return False
 
 
-def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] | None = None) -> tuple[dict, pd.DataFrame]:
+def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] | None = None,
+                   attributes: dict | None = None) -> tuple[dict, pd.DataFrame]:
     """:func:`read_rinex_signals` of a RINEX 3 file from its bytes (``read``: the (decompressed) bytes and
     whether the file was compressed): only the header is split into lines, the body is walked by
     :mod:`cdgps_cli.io.rinex_body`; Unsupported where the line-based readers must decide (RINEX 2, an
@@ -295,7 +338,7 @@ def _read_bytes_v3(p: Path, signals: list, glonass_k, read: tuple[bytes, bool] |
     hdr = _ObsHeader(p, version, compressed)
     hdr.info["satellite_system"] = system or "G"          # as the line-by-line reader's header
     end = hdr.apply_header(head)
-    cols = _columns(hdr, signals, p)
+    cols = _columns(hdr, signals, p, attributes)
     slots = {**(glonass_k or {}), **_glonass_slots(head, end, p)}
     lines = BodyLines(data, body_at)
     try:

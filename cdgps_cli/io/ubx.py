@@ -38,7 +38,7 @@ from cdgps_cli.io.rinex import _frame_as_given
 from cdgps_cli.io.sfrbx import sfrbx_ephemerides_at
 from cdgps_cli.io.ubx_frames import MAX_OFFSETS_SHOWN, rtcm_station_arp, split_stream_spans
 
-__all__ = ["INTEGRITY_COUNTS", "UBX_OBS_COLUMNS", "UBX_SIGNALS", "integrity_line", "integrity_problems", "integrity_record",
+__all__ = ["INTEGRITY_COUNTS", "UBX_ATTRIBUTES", "UBX_OBS_COLUMNS", "UBX_SIGNALS", "integrity_line", "integrity_problems", "integrity_record",
            "read_ubx_rawx", "read_ubx_signals", "skipped_line"]
 
 UBX_OBS_COLUMNS = (
@@ -73,6 +73,11 @@ B2a 7; QZSS L1C/A 0, L2 CM 4, L2 CL 5, L5 I 8, L5 Q 9; GLONASS L1 OF 0, L2 OF 2;
 RINEX ``Jnn``).  u-blox 8 receivers (protocol < 27) report sigId 0 only: GPS L1 C/A, Galileo E1, BeiDou B1I, QZSS
 L1C/A, GLONASS L1."""
 _SYS_LETTER = {0: "G", 2: "E", 3: "C", 5: "J", 6: "R"}
+
+UBX_ATTRIBUTES = {"G:L1": "C", "G:L2": "LS", "G:L5": "IQ", "E:E1": "CB", "E:E5a": "IQ", "E:E5b": "IQ", "C:B1I": "I",
+                  "C:B2I": "I", "C:B2a": "P", "J:L1": "C", "J:L2": "LS", "J:L5": "IQ", "R:G1": "C", "R:G2": "C"}
+"""The RINEX 3 tracking attributes of each signal's RXM-RAWX sigIds (:data:`UBX_SIGNALS`): GPS L2 CL / CM are
+``L2L`` / ``L2S`` (L2C), never P(Y); a u-blox receiver's family of every signal (core.signals.Signal.families)."""
 _GPS_SAT_NAMES = np.array([f"G{v:02d}" for v in range(256)], dtype=object)   # by svId (uint8)
 
 _SYNC = b"\xb5\x62"

@@ -35,7 +35,7 @@ from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav
-from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, glonass_without_frequency_text, out_of_order_text,
+from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
                                         read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
@@ -330,8 +330,11 @@ def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
-    hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings)
-    hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings)
+    attrs, notes = signal_attributes({who: ("ubx" if is_ubx_log(fs[0]) else "rinex", fs[0])
+                                      for who, fs in (("base", base_files), ("rover", rover_files))}, sigs)
+    warnings += notes
+    hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings, attrs["base"])
+    hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings, attrs["rover"])
     b, r, hr, n_outside = _time_window(b, r, hr, opt, base_path, rover_path)
     _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
@@ -890,17 +893,18 @@ def _as_list(paths) -> list:
 ONE_RECEIVER_FIELDS = ("marker_name", "receiver_type", "antenna_type", "signal_codes")
 
 
-def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
+def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list,
+                   attributes: dict | None = None) -> tuple[dict, pd.DataFrame]:
     """A receiver's header and signal table (:func:`_read_observations`) from its file, or from its consecutive
     files (hourly, daily) joined in time order into one record: an epoch a later file repeats is taken from the
     earlier file, files that interleave are refused (:func:`~cdgps_cli.io.log_sequence.join_tables`), and the
     files must be of one receiver (:data:`ONE_RECEIVER_FIELDS`; the header of the first file in time order is
     kept)."""
     if len(files) == 1:
-        return _read_observations(files[0], sigs, glo_k, who, warnings)
+        return _read_observations(files[0], sigs, glo_k, who, warnings, attributes)
     ubx = all(is_ubx_log(p) for p in files)
     said: list = []               # consecutive u-blox logs are decoded again as one stream (below): not their pieces'
-    reads = [_read_observations(p, sigs, glo_k, who, said) for p in files]
+    reads = [_read_observations(p, sigs, glo_k, who, said, attributes) for p in files]
     tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
                                      gps_time_str, what=f"{pieces_text(files)} ({who})")
     refuse_another_receiver(who, [reads[i][0] for i in order], [files[i] for i in order], ONE_RECEIVER_FIELDS)
@@ -968,13 +972,14 @@ def _ubx_receiver(name, decoded: tuple, sigs, who: str, warnings: list) -> tuple
             tab[tab["signal"].isin(list(sigs))].reset_index(drop=True))
 
 
-def _read_observations(path, sigs, glo_k, who: str, warnings: list) -> tuple[dict, pd.DataFrame]:
+def _read_observations(path, sigs, glo_k, who: str, warnings: list,
+                       attributes: dict | None = None) -> tuple[dict, pd.DataFrame]:
     """A receiver's header (``approx_position_xyz_m``) and signal table, from RINEX or from a u-blox
     log's RXM-RAWX (loss of lock from the lock times and half-cycle status; the position from its
     RTCM 1005/1006 when it has one; what the log lost — bad checksums, skipped bytes, a frame cut by
     the end of the file — named in ``warnings``, as ``ingest`` does)."""
     if not is_ubx_log(path):
-        header, obs = read_rinex_signals(path, sigs, glo_k)
+        header, obs = read_rinex_signals(path, sigs, glo_k, attributes=attributes)
         header["file_epochs"] = obs.attrs.pop("file_epochs", None)
         header["file_epoch_times"] = obs.attrs.pop("file_epoch_times", None)
         unknown = obs.attrs.pop("glonass_without_frequency", None)

@@ -1,0 +1,66 @@
+"""One tracking family per signal at every receiver (core.signals.common_attributes, io.rinex_signals.signal_attributes).
+
+A real case (a sweep of session 33): the matrtklib 2018 base (a Trimble NetR9) lists GPS ``L2W`` for every satellite
+and ``L2X`` (L2C) for the five that broadcast it; the rover lists ``L2W`` alone.  Each file's first attribute made
+the base's L2 L2C against the rover's P(Y): each satellite's L2C/P(Y) bias stays in the double differences, and the
+static solution of G:L1 + G:L2 lay 3.7 mm N and 11.8 mm U from RTKLIB's (rnx2rtkp -f 2, GPS, the base position
+given: 4.8936 / −4.4762 / −1.4450 m E/N/U; RTKLIB's code priorities take P(Y) first).  Read as P(Y) at both: within
+0.1 / 0.1 / 0.9 mm, and the base's ten satellites in its L2 group instead of five (eight in common with the rover
+instead of three).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from cdgps_cli.core.signals import common_attributes
+from cdgps_cli.io.rinex_signals import phase_attributes_in_file, read_rinex_signals, signal_attributes
+from tests._shared import REPO_ROOT, run_cli
+
+DATA = REPO_ROOT / "tests" / "data" / "matrtklib-2018-static"
+BASE, ROVER, NAV = DATA / "base_60s.obs.gz", DATA / "rover_60s.obs.gz", DATA / "base.nav.gz"
+BASE_XYZ = ("-3937776.1063", "3354867.8075", "3718445.0835")
+RTKLIB_ENU = np.array([4.8936, -4.4762, -1.4450])          # rnx2rtkp -p 3 -f 2, pos1-navsys=1, -r BASE_XYZ, final epoch
+
+
+def test_the_first_family_every_receiver_holds():
+    assert common_attributes("G:L2", {"base": "WX", "rover": "W"}) == ({"base": "W", "rover": "W"}, True)
+    assert common_attributes("G:L2", {"base": "WX", "rover": "WL"}) == ({"base": "X", "rover": "L"}, True)   # L2C first
+    assert common_attributes("G:L2", {"base": "W", "rover": "LS"}) == ({"base": "W", "rover": "L"}, False)
+    assert common_attributes("G:L2", {"base": "WX", "rover": None}) == ({"base": "X", "rover": None}, True)    # RINEX 2
+    assert common_attributes("J:L1", {"base": "CXZ", "rover": "C"}) == ({"base": "C", "rover": "C"}, True)
+    assert common_attributes("E:E1", {"base": "X", "rover": "C"}) == ({"base": "X", "rover": "C"}, True)      # one family
+
+
+def test_the_real_base_reads_p_y_where_the_rover_has_nothing_else():
+    assert phase_attributes_in_file(BASE, ["G:L2"]) == {"G:L2": "XW"} and phase_attributes_in_file(ROVER, ["G:L2"]) == {"G:L2": "W"}
+    attrs, notes = signal_attributes({"base": ("rinex", BASE), "rover": ("rinex", ROVER)}, ["G:L1", "G:L2"])
+    assert attrs == {"base": {"G:L1": "C", "G:L2": "W"}, "rover": {"G:L1": "C", "G:L2": "W"}} and notes == []
+    h, df = read_rinex_signals(BASE, ["G:L2"], attributes=attrs["base"])
+    assert h["signal_codes"] == {"G:L2": ["L2W", "C2W"]} and df["sat"].nunique() == 10
+    h, df = read_rinex_signals(BASE, ["G:L2"])                       # without a choice: the file's first, L2C
+    assert h["signal_codes"] == {"G:L2": ["L2X", "C2X"]} and df["sat"].nunique() == 5
+    _, notes = signal_attributes({"base": ("ubx", None), "rover": ("rinex", ROVER)}, ["G:L2"])   # u-blox: L2C only
+    assert notes == ["G:L2: the receivers track different signals on this carrier (base L2L, rover L2W): each "
+                     "satellite's bias between the two stays in the double differences (centimetres, not cycles)"]
+
+
+def test_rtk_and_init_on_the_real_pair_land_on_rtklib(tmp_path):
+    r = run_cli("rtk", "--base", BASE, "--rover", ROVER, "--nav", NAV, "--base-xyz", *BASE_XYZ, "--signals", "G:L1,G:L2",
+                "--mode", "static", "--pos-frame", "enu", "-o", tmp_path / "s.pos", "--json")
+    assert r.exit_code == 0, r.output
+    last = [ln.split() for ln in (tmp_path / "s.pos").read_text().splitlines() if not ln.startswith("%")][-1]
+    assert int(last[5]) == 1 and np.abs(np.array(last[2:5], dtype=float) - RTKLIB_ENU).max() < 0.002, last
+    cfg = tmp_path / "cfg.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={BASE}", "--rinex", f"rover={ROVER}", "--nav", NAV, "--master", "base",
+                "--signals", "G:L1,G:L2", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    cfg.write_text(cfg.read_text().replace("# position_ecef_m = [x, y, z]", f"position_ecef_m = [{', '.join(BASE_XYZ)}]", 1))
+    for args in (("ingest", "--config", cfg, "-o", tmp_path / "run.mcap"), ("init", tmp_path / "run.mcap", "-o", tmp_path / "init.json")):
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, r.output
+    rover = json.loads((tmp_path / "init.json").read_text())["rovers"]["rover"]
+    assert rover["solution"] == "fixed"
+    assert np.abs(np.array(rover["baseline_enu_from_master_m"]) - RTKLIB_ENU).max() < 0.003, rover["baseline_enu_from_master_m"]
