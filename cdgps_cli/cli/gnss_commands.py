@@ -59,9 +59,10 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
     from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
 
-    positions, origins, antex_job, types = {}, {}, None, {}
+    positions, origins, antex_job, types, notes = {}, {}, None, {}, []
     if job:
         cfg = load_baseline_job(job)
+        notes = list(cfg.get("notes") or [])
         stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
         positions, origins = cfg.get("positions", {}), cfg.get("origins", {})
         iono = cfg["iono_threshold_km"]
@@ -121,6 +122,10 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
                                         antenna_types=types))
     if job:
         res["inputs"]["config"] = str(job)
+    for w in notes:
+        _warn(w)
+    if notes:
+        res["warnings"] = notes + list(res.get("warnings") or [])
     timing = res.pop("timing_s", {})        # wall-clock: stderr only, so the file is byte-identical across runs
     _write_json_atomic(output, res)
     _say(ctx, format_summary(res))

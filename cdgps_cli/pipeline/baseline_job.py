@@ -168,7 +168,8 @@ def load_baseline_job(path) -> dict:
         (:class:`BaselineOptions`), ``positions`` ({name: ECEF m} given in the file; the
         others come from the RINEX headers), ``origins`` (the file and key that give each
         station's file and the navigation files, for :func:`refuse_missing_files`), ``antex`` (the ANTEX file
-        or None) and, from a GNSS run config, ``antenna_types`` ({name: antenna_type given}).
+        or None) and, from a GNSS run config, ``antenna_types`` ({name: antenna_type given}) and ``notes`` (its
+        ``[gnss] signals`` other than GPS L1, not used).
 
     Raises
     ------
@@ -274,4 +275,15 @@ def _job_from_gnss_config(p: Path, text: str) -> dict:
             "positions": {a.name: a.position_ecef_m for a in cfg.antennas if a.position_ecef_m is not None},
             "origins": {"rinex": {a.name: f"{p}: [gnss.antennas.{a.name}] rinex" for a in cfg.antennas},
                         "nav": f"{p}: [gnss] nav"},
-            "antex": cfg.antex, "antenna_types": {a.name: a.antenna_type for a in cfg.antennas if a.antenna_type}}
+            "antex": cfg.antex, "antenna_types": {a.name: a.antenna_type for a in cfg.antennas if a.antenna_type},
+            "notes": _signals_not_used(p, cfg.signals)}
+
+
+def _signals_not_used(p: Path, signals) -> list:
+    """The note that a config's ``[gnss] signals`` other than GPS L1 are not ``cdgps baseline``'s (it solves GPS L1
+    alone; 'cdgps rtk' and ``ingest`` → ``init`` take them); [] when it names none."""
+    other = [s for s in (signals or ()) if s != "G:L1"]
+    if not other:
+        return []
+    return [f"{p}: [gnss] signals {', '.join(other)} not used: 'cdgps baseline' solves GPS L1 alone ('cdgps rtk', "
+            f"and 'cdgps ingest' → 'cdgps init', take every signal)"]

@@ -64,3 +64,7 @@ def test_rtk_and_init_on_the_real_pair_land_on_rtklib(tmp_path):
     rover = json.loads((tmp_path / "init.json").read_text())["rovers"]["rover"]
     assert rover["solution"] == "fixed"
     assert np.abs(np.array(rover["baseline_enu_from_master_m"]) - RTKLIB_ENU).max() < 0.003, rover["baseline_enu_from_master_m"]
+    r = run_cli("baseline", "--config", cfg, "-o", tmp_path / "bl.json")      # GPS L1 alone: says so
+    note = f"{cfg}: [gnss] signals G:L2 not used: 'cdgps baseline' solves GPS L1 alone"
+    assert r.exit_code == 0 and note in r.output, r.output
+    assert any(w.startswith(note) for w in json.loads((tmp_path / "bl.json").read_text())["warnings"])
