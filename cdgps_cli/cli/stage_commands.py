@@ -1103,13 +1103,15 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     s["init_run"] = pairing
     _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start']} – {s['end']}), {s['kinematic_epochs']} single-epoch "
               f"solutions, {s['events']} events")
-    for r, v in s["rovers"].items():
+    static = run.cfg.displacement == "static"
+    for r, v in s["rovers"].items():               # (a moving rover's static solution: its states' origin, not its place)
         st = ", ".join(f"{k} {x:+.4f}" for k, x in v["static_enu_m"].items())
-        _say(ctx, f"  {r}: {v['solution']} ({v['n_fixed']}/{v['n_estimated']} integers), static (m) {st}")
+        _say(ctx, f"  {r}: {v['solution']} ({v['n_fixed']}/{v['n_estimated']} integers), "
+                  f"{'static' if static else 'origin of the states (the static solution)'} (m) {st}")
         k = v["kinematic_rms_m"]
         if k:
-            _say(ctx, f"    single-epoch scatter about static over {v['kinematic_epochs']} epochs: RMS E {k['e'] * 1e3:.1f} "
-                      f"N {k['n'] * 1e3:.1f} U {k['u'] * 1e3:.1f} mm")
+            _say(ctx, f"    single-epoch scatter about {'static' if static else 'that origin'} over {v['kinematic_epochs']} "
+                      f"epochs: RMS E {k['e'] * 1e3:.1f} N {k['n'] * 1e3:.1f} U {k['u'] * 1e3:.1f} mm")
     for note in s.get("notes", []):
         _say(ctx, f"  note: {note}")
     for ev in s["event_list"][:20]:

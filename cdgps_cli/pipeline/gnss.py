@@ -629,7 +629,7 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
     events: list[dict] = []
     noise = {}
     for r in run.rovers:
-        say(f"baseline {run.master} → {r}: fixed solution with INIT's integers, {model} states …")
+        say(f"baseline {run.master} → {r}: INIT's solution and integers, {model} states …")
         res, w, rov, _ = solve_with_init_integers(run, init, r, stations)
         if run.cfg.phase_noise == "auto":
             noise[r] = phase_variance_factor(w.get("kinematic"))
