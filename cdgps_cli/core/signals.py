@@ -56,8 +56,8 @@ class Signal:
 
 _F0 = 10.23e6
 SIGNALS = {s.name: s for s in (
-    Signal("G:L1", "G", "1", "CSLXPWYM", 154 * _F0, ("L1", "C1", "P1"), families=("C", "SLX", "PWY", "M")),
-    Signal("G:L2", "G", "2", "XLSCWPYDM", 120 * _F0, ("L2", "P2", "C2"), families=("XLS", "C", "WPYD", "M")),
+    Signal("G:L1", "G", "1", "CSLXPWYMN", 154 * _F0, ("L1", "C1", "P1"), families=("C", "SLX", "PWYN", "M")),
+    Signal("G:L2", "G", "2", "XLSCWPYDMN", 120 * _F0, ("L2", "P2", "C2"), families=("XLS", "C", "WPYDN", "M")),
     Signal("G:L5", "G", "5", "QIX", 115 * _F0, ("L5", "C5")),
     Signal("E:E1", "E", "1", "CBX", 154 * _F0, ("L1", "C1")),
     Signal("E:E5a", "E", "5", "QIX", 115 * _F0, ("L5", "C5")),
@@ -90,15 +90,16 @@ two static real pairs that hold QZSS it changed no fix (docs/gnss-pipeline.md, "
 def common_attributes(name: str, held: dict) -> tuple[dict, bool]:
     """The tracking attribute each receiver's phase of signal ``name`` is read with, one family for all of them.
 
-    ``held``: receiver → the attributes of ``name`` its observation types list (None: not known, a RINEX 2 file or a
-    u-blox log of one family, taken as holding any).  The first family (in the order of ``attributes``) every
+    ``held``: receiver → the attributes of ``name`` its observation types list (None: not known, a RINEX 2 file,
+    taken as holding any; "": none, left to the reader, which refuses it).  The first family (in the order of ``attributes``) every
     receiver holds is chosen, each receiver taking its own first attribute of it: a base holding L2C and P(Y) against
     a rover holding P(Y) alone reads P(Y) too, so each satellite's L2C/P(Y) bias — which does not cancel between two
-    receivers tracking different signals — is not in its double differences (RTKLIB's code priorities take P(Y)
-    first). Returns ({receiver: attribute or None}, whether one family serves them all); with none common each
+    receivers tracking different signals — is not in its double differences.  GPS L2 takes L2C first where every
+    receiver has it (RTKLIB's code priorities take P(Y) first, which every satellite transmits and L2C only the newer
+    ones; P(Y) first fixed fewer of the real car's epochs, 351 against 359 of 360: docs/gnss-pipeline.md). Returns ({receiver: attribute or None}, whether one family serves them all); with none common each
     receiver takes its own first attribute, as before."""
     sig = signal(name)
-    known = {rx: a for rx, a in held.items() if a is not None}
+    known = {rx: a for rx, a in held.items() if a}             # (a receiver without the signal: its reader says so)
     fams = sorted(sig.families or (sig.attributes,), key=lambda f: min(sig.attributes.index(c) for c in f))
     for fam in fams:
         picks = {rx: next((c for c in sig.attributes if c in fam and c in a), None) for rx, a in known.items()}

@@ -229,8 +229,8 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
         for f, h in enumerate(cut):
             for j, (k, *_) in enumerate(h.blocks):
                 index[n].setdefault(k, []).append((f, j))
-    attrs, notes = signal_attributes({n: (_kind(hours[n]), hours[n][0].path) for n in names}, cfg.signals or ())
-    inp.warnings.extend(notes)
+    attrs, notes = signal_attributes({n: [(h.kind, h.path, None if h.kind == "ubx" else (h.head, False))
+                                          for h in hours[n]] for n in names}, cfg.signals or ())
     codes = {n: new_codes() for n in names}
     thin = {n: [ThinTables(codes[n], ubx=_kind(hours[n]) == "ubx") for _ in hours[n]] for n in names}
     infos: dict = {n: [[] for _ in hours[n]] for n in names}
@@ -259,7 +259,7 @@ def _blocks(cfg: GnssConfig, inp, hours: dict, keys: list, given: dict, glonass_
     inp.integrity = g._ubx_integrity(inp.receivers, inp.files)
     join_warnings = [w for n in inp.files for w in join_warnings if w[0] == n]
     inp.warnings[0:0] = [w for _, w in join_warnings] + [w for n, rx in inp.receivers.items()
-                                                          for w in g._receiver_warnings(n, inp.files[n][1], rx)]
+                                                          for w in g._receiver_warnings(n, inp.files[n][1], rx)] + notes
     inp.warnings += [w for n, rx in inp.receivers.items() for w in g.empty_epochs_warning(n, inp.files[n][1], rx)]
 
 

@@ -539,8 +539,8 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
     from cdgps_cli.io.ubx import read_ubx_signals  # noqa: PLC0415
 
     glonass_k = dict(glonass_k or {})
-    attrs, notes = signal_attributes({n: (files[n][0], ((pieces or {}).get(n) or [files[n][1]])[0]) for n in receivers},
-                                     signals)
+    attrs, notes = signal_attributes({n: [(files[n][0], q, None) for q in ((pieces or {}).get(n) or [files[n][1]])]
+                                      for n in receivers}, signals)
     if warnings is not None:
         warnings.extend(notes)
     order = sorted(receivers, key=lambda n: files[n][0] != "ubx")      # u-blox logs first: their GLONASS numbers

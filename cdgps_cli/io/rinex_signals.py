@@ -209,10 +209,12 @@ def signals_in_file(path: str | Path) -> list[str]:
     return out
 
 
-def phase_attributes_in_file(path: str | Path, signals) -> dict:
+def phase_attributes_in_file(path: str | Path, signals, read: tuple[bytes, bool] | None = None) -> dict:
     """{signal: the tracking attributes of its phase types that a RINEX 3 observation file's header lists (a string
-    of letters, "" for none)} for ``signals``; every value None for a RINEX 2 file (its ``L2`` may be either family)."""
-    _, hdr, _, _ = _observation_header(path)
+    of letters, "" for none)} for ``signals``; every value None for a RINEX 2 file (its ``L2`` may be either family).
+    ``read``: the header's (decompressed) bytes and whether the file was compressed, when already at hand (an hour
+    of a long file: :class:`~cdgps_cli.io.rinex_hours.RinexHours`'s ``head``)."""
+    _, hdr, _, _ = _observation_header(path, read)
     out = {}
     for name in signals:
         sig = signal(name)
@@ -221,18 +223,34 @@ def phase_attributes_in_file(path: str | Path, signals) -> dict:
     return out
 
 
-def signal_attributes(receivers: dict, signals) -> tuple[dict, list]:
-    """The attribute each receiver reads each RINEX 3 signal with: one family at every receiver
-    (:func:`~cdgps_cli.core.signals.common_attributes`).  ``receivers``: name → (kind, path), ``"rinex"`` or
-    ``"ubx"`` and its (first) file, whose header speaks for the receiver.  Returns ({receiver: {signal: attribute
-    or None}}, the warnings naming each signal whose receivers share no family: each satellite's bias between the
-    two signals stays in its double differences)."""
-    from cdgps_cli.core.signals import common_attributes  # noqa: PLC0415
+def _receiver_attributes(files: list, signals) -> dict:
+    """{signal: the attributes every one of a receiver's files lists (None: none of them says, RINEX 2)}; ``files``:
+    [(kind, path, read or None)], ``"ubx"`` logs by :data:`~cdgps_cli.io.ubx.UBX_ATTRIBUTES`."""
     from cdgps_cli.io.ubx import UBX_ATTRIBUTES  # noqa: PLC0415
 
-    held = {n: ({s: UBX_ATTRIBUTES.get(s) for s in signals} if kind == "ubx" else phase_attributes_in_file(p, signals))
-            for n, (kind, p) in receivers.items()}
+    out: dict = {s: None for s in signals}
+    for kind, path, read in files:
+        held = ({s: UBX_ATTRIBUTES.get(s) for s in signals} if kind == "ubx"
+                else phase_attributes_in_file(path, signals, read))
+        for s, a in held.items():
+            if a is not None:
+                out[s] = a if out[s] is None else "".join(c for c in out[s] if c in a)
+    return out
+
+
+def signal_attributes(receivers: dict, signals) -> tuple[dict, list]:
+    """The attribute each receiver reads each RINEX 3 signal with: one family at every receiver
+    (:func:`~cdgps_cli.core.signals.common_attributes`), among the attributes all of a receiver's files list.
+    ``receivers``: name → [(kind, path, read or None)], ``"rinex"`` or ``"ubx"``, each file and, for a RINEX file,
+    its header's bytes when at hand (:func:`phase_attributes_in_file`).  Returns ({receiver: {signal: attribute or
+    None}}, the warnings naming each signal whose receivers share no family: each satellite's bias between the
+    signals stays in its double differences)."""
+    from cdgps_cli.core.signals import common_attributes  # noqa: PLC0415
+
     out: dict = {n: {} for n in receivers}
+    if not signals:                                # (the GPS L1 path: no header read for nothing)
+        return out, []
+    held = {n: _receiver_attributes(fs, signals) for n, fs in receivers.items()}
     warnings = []
     for s in signals:
         picks, one_family = common_attributes(s, {n: h.get(s) for n, h in held.items()})
@@ -242,7 +260,7 @@ def signal_attributes(receivers: dict, signals) -> tuple[dict, list]:
             band = signal(s).band
             warnings.append(f"{s}: the receivers track different signals on this carrier ("
                             + ", ".join(f"{n} L{band}{a}" for n, a in picks.items() if a) + "): each satellite's "
-                            f"bias between the two stays in the double differences (centimetres, not cycles)")
+                            f"bias between them stays in the double differences (centimetres, not cycles)")
     return out, warnings
 
 

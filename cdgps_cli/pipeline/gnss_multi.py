@@ -297,7 +297,10 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
     write_atomic(out_csv, lambda tmp: Path(tmp).write_text(text, newline=""))
     antennas = {"antex": None if opt["antex"] is None else str(opt["antex"]),
                 **{who: (None if m is None else " ".join(m.name.split())) for who, m in ant.items()}}
-    return {**_summary(res, per_epoch), "signals": pair.sigs, "epoch_pairing": ep, "antennas": antennas,
+    codes = {who: {k: v for k, v in (h.get("signal_codes") or {}).items() if k in pair.sigs} or None
+             for who, h in (("base", pair.hb), ("rover", pair.hr))}   # (the RINEX types read; None: a u-blox log)
+    return {**_summary(res, per_epoch), "signals": pair.sigs, "signal_codes": codes, "epoch_pairing": ep,
+            "antennas": antennas,
             "output": str(out_csv), "mode": opt["mode"], "pos_frame": opt["pos_frame"],
             "base_xyz_m": [float(v) for v in bx], "warnings": warnings}
 
@@ -330,7 +333,7 @@ def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
     # GLONASS frequency numbers: the observation header's, else the navigation records'
     glo_k = ({sat: int(k) for sat, k in nav.dropna(subset=["glonass_k"]).groupby("sat")["glonass_k"].first().items()}
              if "glonass_k" in nav.columns else {})
-    attrs, notes = signal_attributes({who: ("ubx" if is_ubx_log(fs[0]) else "rinex", fs[0])
+    attrs, notes = signal_attributes({who: [("ubx" if is_ubx_log(p) else "rinex", p, None) for p in fs]
                                       for who, fs in (("base", base_files), ("rover", rover_files))}, sigs)
     warnings += notes
     hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings, attrs["base"])

@@ -1,12 +1,12 @@
 """One tracking family per signal at every receiver (core.signals.common_attributes, io.rinex_signals.signal_attributes).
 
 A real case (a sweep of session 33): the matrtklib 2018 base (a Trimble NetR9) lists GPS ``L2W`` for every satellite
-and ``L2X`` (L2C) for the five that broadcast it; the rover lists ``L2W`` alone.  Each file's first attribute made
-the base's L2 L2C against the rover's P(Y): each satellite's L2C/P(Y) bias stays in the double differences, and the
-static solution of G:L1 + G:L2 lay 3.7 mm N and 11.8 mm U from RTKLIB's (rnx2rtkp -f 2, GPS, the base position
-given: 4.8936 / −4.4762 / −1.4450 m E/N/U; RTKLIB's code priorities take P(Y) first).  Read as P(Y) at both: within
-0.1 / 0.1 / 0.9 mm, and the base's ten satellites in its L2 group instead of five (eight in common with the rover
-instead of three).
+and ``L2X`` (L2C) for the five that broadcast it; the rover lists ``L2W`` alone.  Each file's first attribute (L2C
+first) made the base's L2 L2C against the rover's P(Y): each satellite's L2C/P(Y) bias stays in the double
+differences, and the static solution of G:L1 + G:L2 lay 3.7 mm N and 11.8 mm U from RTKLIB's (rnx2rtkp -f 2, GPS,
+the base position given: 4.8936 / −4.4762 / −1.4450 m E/N/U; RTKLIB's code priorities take P(Y) first).  Read as
+P(Y) at both: within 0.0 / 0.1 / 0.9 mm, and the base's ten satellites in its L2 group instead of five (eight in
+common with the rover instead of three).  Against a u-blox rover (L2C alone) the same base reads L2C.
 """
 
 from __future__ import annotations
@@ -28,29 +28,49 @@ RTKLIB_ENU = np.array([4.8936, -4.4762, -1.4450])          # rnx2rtkp -p 3 -f 2,
 def test_the_first_family_every_receiver_holds():
     assert common_attributes("G:L2", {"base": "WX", "rover": "W"}) == ({"base": "W", "rover": "W"}, True)
     assert common_attributes("G:L2", {"base": "WX", "rover": "WL"}) == ({"base": "X", "rover": "L"}, True)   # L2C first
+    assert common_attributes("G:L2", {"base": "WX", "rover": "LS"}) == ({"base": "X", "rover": "L"}, True)   # a u-blox
     assert common_attributes("G:L2", {"base": "W", "rover": "LS"}) == ({"base": "W", "rover": "L"}, False)
     assert common_attributes("G:L2", {"base": "WX", "rover": None}) == ({"base": "X", "rover": None}, True)    # RINEX 2
+    assert common_attributes("G:L2", {"base": "WX", "rover": ""}) == ({"base": "X", "rover": None}, True)     # none
     assert common_attributes("J:L1", {"base": "CXZ", "rover": "C"}) == ({"base": "C", "rover": "C"}, True)
     assert common_attributes("E:E1", {"base": "X", "rover": "C"}) == ({"base": "X", "rover": "C"}, True)      # one family
 
 
-def test_the_real_base_reads_p_y_where_the_rover_has_nothing_else():
+def test_the_real_base_reads_one_family_with_its_partner():
     assert phase_attributes_in_file(BASE, ["G:L2"]) == {"G:L2": "XW"} and phase_attributes_in_file(ROVER, ["G:L2"]) == {"G:L2": "W"}
-    attrs, notes = signal_attributes({"base": ("rinex", BASE), "rover": ("rinex", ROVER)}, ["G:L1", "G:L2"])
+    attrs, notes = signal_attributes({"base": [("rinex", BASE, None)], "rover": [("rinex", ROVER, None)]}, ["G:L1", "G:L2"])
     assert attrs == {"base": {"G:L1": "C", "G:L2": "W"}, "rover": {"G:L1": "C", "G:L2": "W"}} and notes == []
     h, df = read_rinex_signals(BASE, ["G:L2"], attributes=attrs["base"])
     assert h["signal_codes"] == {"G:L2": ["L2W", "C2W"]} and df["sat"].nunique() == 10
-    h, df = read_rinex_signals(BASE, ["G:L2"])                       # without a choice: the file's first, L2C
+    attrs, notes = signal_attributes({"base": [("rinex", BASE, None)], "rover": [("ubx", None, None)]}, ["G:L2"])
+    assert attrs == {"base": {"G:L2": "X"}, "rover": {"G:L2": "L"}} and notes == []     # against a u-blox: L2C at both
+    h, df = read_rinex_signals(BASE, ["G:L2"], attributes=attrs["base"])
     assert h["signal_codes"] == {"G:L2": ["L2X", "C2X"]} and df["sat"].nunique() == 5
-    _, notes = signal_attributes({"base": ("ubx", None), "rover": ("rinex", ROVER)}, ["G:L2"])   # u-blox: L2C only
+    _, notes = signal_attributes({"base": [("ubx", None, None)], "rover": [("rinex", ROVER, None)]}, ["G:L2"])
     assert notes == ["G:L2: the receivers track different signals on this carrier (base L2L, rover L2W): each "
-                     "satellite's bias between the two stays in the double differences (centimetres, not cycles)"]
+                     "satellite's bias between them stays in the double differences (centimetres, not cycles)"]
+
+
+def test_a_receivers_files_each_list_the_attribute_it_reads(tmp_path):
+    """The attributes all of a receiver's files list: a second file without L2W makes the first read L2C too."""
+    import gzip
+
+    text = gzip.decompress(BASE.read_bytes()).decode()
+    only_x = tmp_path / "b2.obs"                      # the same header without L2W (its type renamed: not listed)
+    only_x.write_text(text.replace(" C2W L2W S2W ", " C2V L2V S2V ", 1))
+    attrs, _ = signal_attributes({"base": [("rinex", BASE, None), ("rinex", only_x, None)],
+                                  "rover": [("ubx", None, None)]}, ["G:L2"])
+    assert attrs["base"] == {"G:L2": "X"}
+    head = text[:text.index("END OF HEADER") + len("END OF HEADER\n")].encode()
+    assert phase_attributes_in_file("named.obs", ["G:L2"], read=(head, False)) == {"G:L2": "XW"}   # the header alone
 
 
 def test_rtk_and_init_on_the_real_pair_land_on_rtklib(tmp_path):
     r = run_cli("rtk", "--base", BASE, "--rover", ROVER, "--nav", NAV, "--base-xyz", *BASE_XYZ, "--signals", "G:L1,G:L2",
                 "--mode", "static", "--pos-frame", "enu", "-o", tmp_path / "s.pos", "--json")
     assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["signal_codes"] == {"base": {"G:L1": ["L1C", "C1C"], "G:L2": ["L2W", "C2W"]},
+                                                    "rover": {"G:L1": ["L1C", "C1C"], "G:L2": ["L2W", "C2W"]}}
     last = [ln.split() for ln in (tmp_path / "s.pos").read_text().splitlines() if not ln.startswith("%")][-1]
     assert int(last[5]) == 1 and np.abs(np.array(last[2:5], dtype=float) - RTKLIB_ENU).max() < 0.002, last
     cfg = tmp_path / "cfg.toml"
