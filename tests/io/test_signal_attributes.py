@@ -88,3 +88,29 @@ def test_rtk_and_init_on_the_real_pair_land_on_rtklib(tmp_path):
     note = f"{cfg}: [gnss] signals G:L2 not used: 'cdgps baseline' solves GPS L1 alone"
     assert r.exit_code == 0 and note in r.output, r.output
     assert any(w.startswith(note) for w in json.loads((tmp_path / "bl.json").read_text())["warnings"])
+
+
+def test_hour_by_hour_and_whole_ingest_choose_and_say_alike(tmp_path, monkeypatch):
+    """A base listing L2C alone against a P(Y) rover: no common family, said once, at one place of the summary, by the
+    hour-by-hour reading (from each file's header bytes) as by the whole one; the same RUN byte for byte."""
+    import gzip
+
+    from cdgps_cli.io import gnss_archive
+    from cdgps_cli.config.structure import load_gnss_config
+    from tests.io.test_gnss_hours import _same_run
+
+    monkeypatch.setattr(gnss_archive, "OBS_BLOCK_S", 20.0)
+    base, rover = tmp_path / "base.obs", tmp_path / "rover.obs"
+    base.write_text(gzip.decompress(BASE.read_bytes()).decode().replace(" C2W L2W S2W ", " C2V L2V S2V ", 1))
+    rover.write_bytes(gzip.decompress(ROVER.read_bytes()))
+    cfg = tmp_path / "cfg.toml"
+    r = run_cli("-q", "config", "--rinex", f"base={base}", "--rinex", f"rover={rover}", "--master", "base",
+                "--signals", "G:L1,G:L2", "-o", cfg)
+    assert r.exit_code == 0, r.output
+    said = _same_run(load_gnss_config(cfg), tmp_path, monkeypatch)
+    assert any("hour by hour" in m for m in said)
+    s = __import__("cdgps_cli.pipeline.gnss_ingest", fromlist=["x"]).ingest_gnss(load_gnss_config(cfg),
+                                                                                tmp_path / "again.mcap")
+    notes = [w for w in s["warnings"] if w.startswith("G:L2: the receivers track different signals")]
+    assert notes == ["G:L2: the receivers track different signals on this carrier (base L2X, rover L2W): each "
+                     "satellite's bias between them stays in the double differences (centimetres, not cycles)"]
