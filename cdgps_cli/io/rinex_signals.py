@@ -213,14 +213,43 @@ def phase_attributes_in_file(path: str | Path, signals, read: tuple[bytes, bool]
     """{signal: the tracking attributes of its phase types that a RINEX 3 observation file's header lists (a string
     of letters, "" for none)} for ``signals``; every value None for a RINEX 2 file (its ``L2`` may be either family).
     ``read``: the header's (decompressed) bytes and whether the file was compressed, when already at hand (an hour
-    of a long file: :class:`~cdgps_cli.io.rinex_hours.RinexHours`'s ``head``)."""
-    _, hdr, _, _ = _observation_header(path, read)
+    of a long file: :class:`~cdgps_cli.io.rinex_hours.RinexHours`'s ``head``); without it, a plain file's header
+    alone is read (:func:`_plain_header`), a compressed file whole."""
+    _, hdr, _, _ = _observation_header(path, read if read is not None else _plain_header(path))
     out = {}
     for name in signals:
         sig = signal(name)
         types = hdr.info["obs_types"].get(sig.system, []) if hdr.version >= 3 else None
         out[name] = None if types is None else "".join(a for a in sig.attributes if f"L{sig.band}{a}" in types)
     return out
+
+
+#: bytes read at a time while looking for a plain RINEX file's END OF HEADER
+_HEADER_CHUNK = 1 << 16
+
+
+def _plain_header(path) -> tuple[bytes, bool] | None:
+    """(a plain — uncompressed, not Hatanaka — RINEX file's bytes through its END OF HEADER line, False), read a chunk
+    at a time; None for any other file, or a header not found in its first MiB (the readers then read it whole)."""
+    from cdgps_cli.io.rinex import COMPRESSED_MAGIC  # noqa: PLC0415
+
+    try:
+        with open(path, "rb") as f:
+            data = f.read(_HEADER_CHUNK)
+            if data.startswith(COMPRESSED_MAGIC) or b"CRINEX VERS" in data[:100]:      # (Hatanaka: its reader's)
+                return None
+            while b"END OF HEADER" not in data and len(data) < (1 << 20):
+                more = f.read(_HEADER_CHUNK)
+                if not more:
+                    break
+                data += more
+    except OSError:
+        return None
+    end = data.find(b"END OF HEADER")
+    if end < 0:
+        return None
+    stop = data.find(b"\n", end)
+    return (data if stop < 0 else data[:stop + 1]), False
 
 
 def _receiver_attributes(files: list, signals) -> dict:

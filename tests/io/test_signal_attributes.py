@@ -114,3 +114,15 @@ def test_hour_by_hour_and_whole_ingest_choose_and_say_alike(tmp_path, monkeypatc
     notes = [w for w in s["warnings"] if w.startswith("G:L2: the receivers track different signals")]
     assert notes == ["G:L2: the receivers track different signals on this carrier (base L2X, rover L2W): each "
                      "satellite's bias between them stays in the double differences (centimetres, not cycles)"]
+
+
+def test_a_plain_files_header_alone_is_read():
+    from cdgps_cli.io.rinex_signals import _plain_header
+
+    car = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "geonet-car" / "3034265G.21O"
+    plain = REPO_ROOT / "tests" / "data" / "demo3.10o"
+    head, compressed = _plain_header(plain)
+    assert not compressed and head.rstrip().endswith(b"END OF HEADER") and len(head) < plain.stat().st_size
+    assert _plain_header(BASE) is None and _plain_header(REPO_ROOT / "tests" / "data" / "P433_lli_subset.crx") is None
+    if car.exists():
+        assert phase_attributes_in_file(car, ["G:L2"]) == {"G:L2": "XW"}
