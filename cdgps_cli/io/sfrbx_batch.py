@@ -205,10 +205,11 @@ def _kepler_lsb(f: dict, toe) -> dict:
             "omega_dot_rad_per_s": f["omegadot"] * 2.0**-43 * pi, "idot_rad_per_s": f["idot"] * 2.0**-43 * pi}
 
 
-def gps_columns(bits: np.ndarray, week_ref: int) -> tuple[dict, np.ndarray]:
+def gps_columns(bits: np.ndarray, week_ref: int, qzss: bool = False) -> tuple[dict, np.ndarray]:
     """:func:`~cdgps_cli.io.sfrbx.decode_gps_subframes` of many sets: (column → array, set decodable).
 
-    ``bits``: uint8 0/1, shape (m, 720): the 240 data bits of subframes 1, 2, 3 of each set."""
+    ``bits``: uint8 0/1, shape (m, 720): the 240 data bits of subframes 1, 2, 3 of each set; ``qzss``: QZSS sets
+    (their fit-interval flag read as QZSS's, :func:`~cdgps_cli.io.rinex.qzss_fit_interval_h`)."""
     f = _GPS.values(bits)
     iode = f["iode"]
     ok = (f["iode3"] == iode) & ((f["iodc"] & 0xFF) == iode)
@@ -222,7 +223,7 @@ def gps_columns(bits: np.ndarray, week_ref: int) -> tuple[dict, np.ndarray]:
         "codes_l2": f["codes_l2"], "week": week, "l2p_data_flag": f["l2p"],
         "sv_accuracy_m": np.where(ura < _URA.size, _URA[np.minimum(ura, _URA.size - 1)], 6144.0 * 2),
         "sv_health": f["health"], "tgd_s": f["tgd"] * 2.0**-31, "iodc": f["iodc"], "transmit_sow_s": tow_sf1,
-        "fit_interval_h": np.where(f["fit"] == 0, 4.0, 6.0), "line": -1,
+        "fit_interval_h": sf.qzss_fit_interval_h(f["fit"]) if qzss else np.where(f["fit"] == 0, 4.0, 6.0), "line": -1,
         "transmit_gps_s": week * W_S + tow_sf1, "toc_gps_s": _nearest_week_s(week, tow_sf1, toc),
         "toe_gps_s": _nearest_week_s(week, tow_sf1, toe),
     }
@@ -267,9 +268,7 @@ def gps_records(x: np.ndarray, off: np.ndarray, week_ref: int | None, stats: dic
     if not len(sets):
         return None
     bits = _words24_bits(words[use])
-    cols, ok = gps_columns(bits[sets].reshape(len(sets), 720), week_ref)
-    if letter == "J":
-        cols["fit_interval_h"] = sf.qzss_fit_interval_h(np.where(cols["fit_interval_h"] == 4.0, 0, 1))
+    cols, ok = gps_columns(bits[sets].reshape(len(sets), 720), week_ref, qzss=letter == "J")
     return _kept(sv[use][sets[:, 0]], letter, cols, ok)
 
 

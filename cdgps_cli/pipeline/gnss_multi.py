@@ -173,14 +173,13 @@ def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_pat
     tol, tr = float(opt["sync_tol_s"]), r["time_gps_s"].to_numpy()
     want = f"{gps_time_str(lo) if np.isfinite(lo) else 'its start'} – {gps_time_str(hi) if np.isfinite(hi) else 'its end'}"
     keep = _in_window(tr, lo, hi, tol)
-    for df, k, path, who in ((r, keep, rover_path, "rover"), (b, None, base_path, "base")):
-        if k is None:                       # the base: where the window's epochs find their pairs and bridges
-            tb = b["time_gps_s"].to_numpy()
-            k = kb = _in_window(tb, lo - float(opt["max_age_s"]), hi + float(opt["max_age_s"]), tol)
+    age = float(opt["max_age_s"])           # the base: where the window's epochs find their pairs and bridges
+    kb = _in_window(b["time_gps_s"].to_numpy(), lo - age, hi + age, tol)
+    for df, k, path, who in ((r, keep, rover_path, "rover"), (b, kb, base_path, "base")):
         if not k.any():
             span = time_span(df["time_gps_s"].to_numpy())
             has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
-            near = "" if who == "rover" else f" or within max_age_s ({float(opt['max_age_s']):g} s) of it"
+            near = "" if who == "rover" else f" or within max_age_s ({age:g} s) of it"
             raise CdgpsError(f"{path} ({who}): no epoch in the window asked for{near} ({want}: --start-time / "
                              f"--end-time); its epochs span {has}")
     listed = hr.get("file_epoch_times")

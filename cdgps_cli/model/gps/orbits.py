@@ -355,7 +355,7 @@ def healthy_ephemeris(sats, sv_health) -> np.ndarray:
     """
     h = np.asarray(sv_health, dtype=np.float64)
     sats = np.asarray(sats, dtype=object)
-    qzss = np.fromiter((str(s)[:1] == "J" for s in sats), dtype=bool, count=sats.size)
+    qzss = sats.astype("U1") == "J" if sats.size else np.zeros(0, dtype=bool)    # (the first letter: the system)
     if not qzss.any():
         return h == 0
     masked = np.where(qzss & np.isfinite(h), np.bitwise_and(np.nan_to_num(h).astype(np.int64), ~QZSS_IGNORED_HEALTH_BITS), h)
