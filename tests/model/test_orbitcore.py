@@ -1,6 +1,6 @@
 """The compiled orbit kernel (cdgps_cli.model.gps._orbitcore) against the numpy functions it replaces, bit for bit:
-sat_positions_at_reception (light time, Kepler's equation per satellite block, rows kept across light-time
-iterations), sat_position_rows (one block), and the kernel's own memory of earlier calls (a row keeps its steps
+sat_positions_at_reception (light time and Kepler's equation, each row on its own, rows kept across light-time
+iterations), sat_position_rows (each row on its own), and the kernel's own memory of earlier calls (a row keeps its steps
 and its orbit only where that gives the values of a fresh evaluation).  The equality rests on numpy's float64
 sin/cos being libm's (as on this project's machines) and on numpy's arctan2 being applied to the kernel's output."""
 
@@ -70,13 +70,10 @@ def test_position_rows_kernel_is_numpy(monkeypatch):
             _assert_same(got, want)
 
 
-def _numpy_blocks(k, t, starts):
-    return orbits._kepler_blocks(k, t, starts, True)
-
-
 def test_kept_rows_give_a_fresh_evaluation():
-    """Rows evaluated again at the same times under other blocks (a block may now stop before a row's steps) or
-    at partly changed times: what the kernel keeps from the first call gives the numpy values of the second."""
+    """Rows evaluated again at the same times or at partly changed times (each row a block of its own, as
+    sat_positions_at_reception calls the kernel): what the kernel keeps from the first call gives the numpy values
+    of the second."""
     nav, sats, t = _synthetic()
     eph = orbits.reception_ephemeris(nav, sats, t)
     kc = orbits._packed_constants(eph.kepler)
@@ -85,18 +82,16 @@ def test_kept_rows_give_a_fresh_evaluation():
     k = {f: v[rows] for f, v in eph.kepler.items()}
     n = tt.size
     rng = np.random.default_rng(5)
-    one = np.zeros(1, dtype=np.int64)
-    many = np.unique(np.r_[0, rng.integers(1, n, 60)]).astype(np.int64)
+    each = np.arange(n, dtype=np.int64)
     moved = tt.copy()
     moved[rng.random(n) < 0.3] += 3e-3
-    for first, second, t2 in ((one, many, tt), (many, one, tt), (eph.starts, many, moved), (many, many, moved)):
-        state = orbits._core_state(n, first.size)
+    for t2 in (tt, moved):
+        state = orbits._core_state(n, n)
         xyz, clk = np.zeros((n, 3)), np.zeros(n)
-        orbits._core_kepler(kc, rows, tt, first, state, False, True, xyz, clk)
-        state = state[:4] + (np.ones(second.size, dtype=np.uint8),)
-        orbits._core_kepler(kc, rows, t2, second, state, True, True, xyz, clk)
-        want = _numpy_blocks(k, t2, second)
-        _assert_same((xyz, clk), want)
+        orbits._core_kepler(kc, rows, tt, each, state, False, True, xyz, clk)
+        state = state[:4] + (np.ones(n, dtype=np.uint8),)
+        orbits._core_kepler(kc, rows, t2, each, state, True, True, xyz, clk)
+        _assert_same((xyz, clk), orbits._kepler_rows(k, t2, True))
 
 
 def test_azimuth_elevation_and_niell_kernel_is_numpy(monkeypatch):

@@ -8,7 +8,10 @@
  * float64 arctan2 is a SIMD routine that differs from libm's atan2 by an ulp now and then, so the caller applies
  * np.arctan2 to the (y, x) this module writes and hands the result back.
  *
- * Work saved, exactly: Kepler's equation is iterated in lockstep per block, as numpy does (a block stops after
+ * orbits.py passes every row as a block of its own (issue 29: a row's value then depends on its own data alone,
+ * so a window of a record gives the whole record's values); the kernel keeps its block form.
+ *
+ * Work saved, exactly: Kepler's equation is iterated in lockstep per block (a block stops after
  * the first iteration in which all its steps are below 1e-15 rad), but a row whose step leaves E unchanged
  * (a fixed point) is not evaluated again: every further step would give the same E and the same small step.
  * Across light-time iterations a row whose transmission time did not change (the usual case once tau has
@@ -30,7 +33,7 @@
  *   for the rows of the live blocks: the Sagnac rotation by omega_e tau, the range to rx ((3,), or (N, 3) read at
  *   order), tau <- range / c, written to row order[i] of rot (N, 3), clock, range and travel (N); a block stops
  *   when all its steps |range/c - tau| are below 1e-12 s (live cleared).
- * newton(K, rows, t, ek, state): one block of all rows (orbits.sat_position_rows), E into ek (n), state uint8 (n)
+ * newton(K, rows, t, ek, state): every row on its own (orbits.sat_position_rows), E into ek (n), state uint8 (n)
  *   scratch; anomaly_trig(K, rows, ek, sin, cos, yat, xat); orbit(K, rows, t, sin, cos, nu, xyz, clk, apply_tgd,
  *   cos_tilt, sin_tilt): the same in pieces, so that the rest runs chunk by chunk (small temporaries).
  * enu(R, rx, xyz, out) and niell(el, doy, p, out): orbits.azimuth_elevation's rotation to east/north/up (the sums
@@ -328,6 +331,28 @@ static PyObject *py_kepler(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* One row of the light-time step: the Sagnac rotation by omega_e tau, the range to q, tau <- range / c, written to
+ * output row w; returns whether its step was not below 1e-12 s. */
+static inline int light_row(const double *p, double ck, double *tau, const double *q, Py_ssize_t w, double *rot,
+                            double *clk_out, double *rng, double *tau_out, double omega_e, double c)
+{
+    const double tr = *tau;
+    double sn, cs;
+    SINCOS(omega_e * tr, &sn, &cs);
+    const double x = cs * p[0] + sn * p[1], y = -sn * p[0] + cs * p[1], z = p[2];
+    const double dx = x - q[0], dy = y - q[1], dz = z - q[2];
+    const double r = sqrt(dx * dx + dy * dy + dz * dz);
+    const double nt = r / c;
+    rot[3 * w] = x;
+    rot[3 * w + 1] = y;
+    rot[3 * w + 2] = z;
+    clk_out[w] = ck;
+    rng[w] = r;
+    tau_out[w] = nt;
+    *tau = nt;
+    return !(fabs(nt - tr) < 1e-12);
+}
+
 static PyObject *py_light(PyObject *self, PyObject *args)
 {
     PyObject *o[11];
@@ -378,24 +403,10 @@ static PyObject *py_light(PyObject *self, PyObject *args)
     for (Py_ssize_t j = 0; j < nb; ++j) {
         if (!live[j]) continue;
         int more = 0;
-        for (Py_ssize_t i = starts[j]; i < BLOCK_END(starts, nb, n, j); ++i) {
-            const Py_ssize_t w = order[i];
-            const double tr = tau[i], *p = xyz + 3 * i, *q = per_row ? rx + 3 * w : rx;
-            double sn, cs;
-            SINCOS(omega_e * tr, &sn, &cs);
-            const double x = cs * p[0] + sn * p[1], y = -sn * p[0] + cs * p[1], z = p[2];
-            const double dx = x - q[0], dy = y - q[1], dz = z - q[2];
-            const double r = sqrt(dx * dx + dy * dy + dz * dz);
-            const double nt = r / c;
-            if (!(fabs(nt - tr) < 1e-12)) more = 1;
-            rot[3 * w] = x;
-            rot[3 * w + 1] = y;
-            rot[3 * w + 2] = z;
-            clk_out[w] = clk[i];
-            rng[w] = r;
-            tau_out[w] = nt;
-            tau[i] = nt;
-        }
+        const Py_ssize_t i1 = BLOCK_END(starts, nb, n, j);
+        for (Py_ssize_t i = starts[j]; i < i1; ++i)
+            more |= light_row(xyz + 3 * i, clk[i], tau + i, per_row ? rx + 3 * order[i] : rx, order[i], rot, clk_out, rng,
+                              tau_out, omega_e, c);
         live[j] = (uint8_t)more;
         going += more;
     }
@@ -404,8 +415,8 @@ static PyObject *py_light(PyObject *self, PyObject *args)
     return PyLong_FromSsize_t(going);
 }
 
-/* One block of all n rows (orbits.sat_position_rows): E after the block's Newton iterations, into ek; fixed points
- * are not stepped again (state, n bytes, scratch). */
+/* The n rows of orbits.sat_position_rows: E after each row's own Newton iterations (it stops after its first step
+ * below 1e-15 rad), into ek; state (n bytes) is scratch, kept for the call's signature. */
 static PyObject *py_newton(PyObject *self, PyObject *args)
 {
     PyObject *o[5];
@@ -430,25 +441,19 @@ static PyObject *py_newton(PyObject *self, PyObject *args)
         return NULL;
     }
     Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t i = 0; i < n; ++i) {
-        ek[i] = mean_anomaly(K + rows[i] * NK, t[i]);
-        fixed[i] = 0;
-    }
-    for (int it = 1; it <= MAX_NEWTON; ++it) {
-        int big = 0;
-        for (Py_ssize_t i = 0; i < n; ++i) {
-            if (fixed[i]) continue;
-            const double *k = K + rows[i] * NK;
-            const double m = mean_anomaly(k, t[i]), e = k[K_E], b = ek[i];
+    for (Py_ssize_t i = 0; i < n; ++i) {         /* each row on its own: it stops after its first step below 1e-15 */
+        const double *k = K + rows[i] * NK;
+        const double m = mean_anomaly(k, t[i]), e = k[K_E];
+        double b = m;
+        for (int it = 1; it <= MAX_NEWTON; ++it) {
             double sn, cs;
             SINCOS(b, &sn, &cs);
             const double d = (b - e * sn - m) / (1.0 - e * cs);
-            const double nb = b - d;
-            if (!(fabs(d) < 1e-15)) big = 1;
-            else if (same_bits(nb, b)) fixed[i] = 1;
-            ek[i] = nb;
+            b = b - d;
+            if (fabs(d) < 1e-15) break;
         }
-        if (!big) break;
+        ek[i] = b;
+        fixed[i] = 0;
     }
     Py_END_ALLOW_THREADS
     release(&bs);
@@ -620,7 +625,7 @@ static struct PyModuleDef moddef = {
 PyMODINIT_FUNC PyInit__orbitcore(void)
 {
     PyObject *m = PyModule_Create(&moddef);
-    if (m && (PyModule_AddIntConstant(m, "API", 3) < 0 || PyModule_AddIntConstant(m, "NK", NK) < 0 ||
+    if (m && (PyModule_AddIntConstant(m, "API", 4) < 0 || PyModule_AddIntConstant(m, "NK", NK) < 0 ||
               PyModule_AddIntConstant(m, "NS", NS) < 0)) {
         Py_DECREF(m);
         return NULL;

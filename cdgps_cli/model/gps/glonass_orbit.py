@@ -11,7 +11,7 @@ another time comes from integrating the equations of motion in the rotating fram
     dv_y/dt = −μ y/r³ − 3/2 J₂ μ a_e² y/r⁵ (1 − 5 z²/r²) + ω² y − 2 ω v_x + ÿ_ls
     dv_z/dt = −μ z/r³ − 3/2 J₂ μ a_e² z/r⁵ (3 − 5 z²/r²) + z̈_ls
 
-with the fourth-order Runge–Kutta method (steps ≤ :data:`RK4_MAX_STEP_S`).  The clock correction in
+with the fourth-order Runge–Kutta method (steps ≤ :data:`RK4_MAX_STEP_S`, each record its own).  The clock correction in
 the GPS sense (t_sys = t_sv − Δt_sv) is Δt_sv = −τ_n + γ_n (t − t_b).  PZ-90.11 and WGS-84 (G1762)
 agree to a few centimetres, so positions are used as WGS-84 without a transformation.  Times are GPS
 seconds; the RINEX reader has already moved t_b from UTC(SU) to GPS time.
@@ -77,7 +77,9 @@ def glonass_position(state0: np.ndarray, accel_ls: np.ndarray, dt_s, *, max_step
     dt_s : array_like, shape (N,)
         t − t_b per record, s (either sign).
     max_step_s : float
-        Largest step, s: every record takes the same number of equal steps, ceil(max |dt| / max_step_s).
+        Largest step, s: each record takes its own number of equal steps, max(1, ceil(|dt| / max_step_s)),
+        so its value depends on its own state and time alone, never on the other records of the call (a
+        window of a record gives the whole record's values bit for bit, issue 29).
 
     Returns
     -------
@@ -89,12 +91,18 @@ def glonass_position(state0: np.ndarray, accel_ls: np.ndarray, dt_s, *, max_step
     dt = np.asarray(dt_s, dtype=np.float64).reshape(-1)
     if dt.size == 0:
         return s
-    n = max(1, int(np.ceil(np.max(np.abs(dt)) / max_step_s)))
-    h = (dt / n)[:, None]
-    for _ in range(n):
-        k1 = glonass_derivative(s, acc)
-        k2 = glonass_derivative(s + 0.5 * h * k1, acc)
-        k3 = glonass_derivative(s + 0.5 * h * k2, acc)
-        k4 = glonass_derivative(s + h * k3, acc)
-        s = s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    steps = np.maximum(1, np.ceil(np.abs(dt) / max_step_s)).astype(np.int64)
+    h = (dt / steps)[:, None]
+    for k in range(int(steps.max())):
+        go = np.flatnonzero(steps > k)          # the records still stepping (all of them while k < min(steps))
+        s[go] = _rk4_step(s[go], acc[go], h[go])
     return s
+
+
+def _rk4_step(s: np.ndarray, acc: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """One classical Runge–Kutta step of :func:`glonass_derivative` of length ``h`` (N, 1) s from ``s`` (N, 6)."""
+    k1 = glonass_derivative(s, acc)
+    k2 = glonass_derivative(s + 0.5 * h * k1, acc)
+    k3 = glonass_derivative(s + 0.5 * h * k2, acc)
+    k4 = glonass_derivative(s + h * k3, acc)
+    return s + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)

@@ -197,15 +197,21 @@ def beidou_geo_rotation(xyz_gk_m: np.ndarray, we_tk_rad) -> np.ndarray:
 
 
 def _eccentric_anomaly(m: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """Solve Kepler's equation E − e·sin E = M by Newton iteration (converges to 1e-15 rad)."""
-    ecc = np.asarray(e, dtype=np.float64)
-    big_e = np.array(m, dtype=np.float64, copy=True)
+    """Solve Kepler's equation E − e·sin E = M by Newton iteration, each row on its own: a row stops after
+    the first step below 1e-15 rad (at most 30), so its E depends on its own M and e alone, never on the other
+    rows evaluated with it (a window of a record gives the whole record's values bit for bit, issue 29)."""
+    ecc = np.broadcast_to(np.asarray(e, dtype=np.float64), np.shape(m)).ravel()
+    mm = np.asarray(m, dtype=np.float64).ravel()
+    big_e = mm.copy()
+    go = np.arange(mm.size)
     for _ in range(30):
-        d = (big_e - ecc * np.sin(big_e) - m) / (1.0 - ecc * np.cos(big_e))
-        big_e = big_e - d
-        if np.all(np.abs(d) < 1e-15):
+        b, eg = big_e[go], ecc[go]
+        d = (b - eg * np.sin(b) - mm[go]) / (1.0 - eg * np.cos(b))
+        big_e[go] = b - d
+        go = go[~(np.abs(d) < 1e-15)]
+        if not go.size:
             break
-    return big_e
+    return big_e.reshape(np.shape(m))
 
 
 def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -534,8 +540,7 @@ def sat_position_rows(eph: EphemerisRows, t_gps_s, *, apply_tgd: bool = True) ->
         c, kep = eph.constants, eph.kepler
         nav_k, tq = eph.rows[kep], t[kep]
         tk = tq - c["toe_gps_s"][nav_k]
-        # one block: Kepler's equation iterated over all the Kepler rows until every one has converged
-        ek = _eccentric_anomaly_blocks(c["m0_rad"][nav_k] + c["n"][nav_k] * tk, c["e"][nav_k], np.zeros(1, dtype=np.int64))
+        ek = _eccentric_anomaly(c["m0_rad"][nav_k] + c["n"][nav_k] * tk, c["e"][nav_k])   # each row on its own
         for a in range(0, kep.size, CHUNK_ROWS):        # the rest elementwise, chunk by chunk (temporaries of MB)
             s = slice(a, a + CHUNK_ROWS)
             kc = {f: v[nav_k[s]] for f, v in c.items()}
@@ -610,16 +615,20 @@ def sat_position_at_reception(
     t_true = t_rx - np.asarray(rx_clock_s, dtype=np.float64)
     tau = np.full(t_rx.shape, 0.075)
     position = _position_of(eph, (t_true - tau).shape, apply_tgd)
+    rot, clk, rng = np.empty((t_rx.size, 3)), np.empty(t_rx.size), np.empty(t_rx.size)
+    go = np.ones(t_rx.size, dtype=bool)     # each row iterates until its own step is below 1e-12 s
     for _ in range(10):
-        xyz, clk = position(t_true - tau)
+        xyz, c_all = position(t_true - tau)
         theta = OMEGA_E_GPS * tau
         c, s = np.cos(theta), np.sin(theta)
-        rot = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
-        rng = np.linalg.norm(rot - rx, axis=-1)
-        new_tau = rng / SPEED_OF_LIGHT_M_S
-        done = np.max(np.abs(new_tau - tau)) < 1e-12
-        tau = new_tau
-        if done:
+        rot_all = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
+        rng_all = np.linalg.norm(rot_all - rx, axis=-1)
+        new_tau = rng_all / SPEED_OF_LIGHT_M_S
+        rot[go], clk[go], rng[go] = rot_all[go], c_all[go], rng_all[go]
+        step = np.abs(new_tau - tau)
+        tau = np.where(go, new_tau, tau)
+        go &= ~(step < 1e-12)
+        if not go.any():
             break
     return ReceptionGeometry(rot, clk, rng, tau)
 
@@ -750,57 +759,16 @@ def _chunks(starts: np.ndarray, n: int, size: int) -> list:
     return out
 
 
-class _Blocks:
-    """Consecutive blocks of rows (one per satellite) that iterate until each block has converged on
-    its own, as one call per block would: ``rows`` are the positions of the blocks still iterating
-    (a slice while all are) and ``starts`` their starts within those rows."""
-
-    def __init__(self, starts: np.ndarray, n: int):
-        self.all_starts = starts
-        self.sizes = np.diff(np.r_[starts, n])
-        self.live = np.ones(starts.size, dtype=bool)
-        self.rows = slice(None)
-        self.starts = starts
-
-    def settle(self, going: np.ndarray) -> bool:
-        """Stop the blocks whose ``going`` (one per live block) is False; True while some still go."""
-        if going.all():
-            return True
-        self.live[np.flatnonzero(self.live)[~going]] = False
-        if not self.live.any():
-            return False
-        kept = self.sizes[self.live]
-        self.rows = np.concatenate([np.arange(s, s + k) for s, k in zip(self.all_starts[self.live], kept)])
-        self.starts = np.cumsum(np.r_[0, kept[:-1]]).astype(np.int64)
-        return True
-
-
-def _eccentric_anomaly_blocks(m: np.ndarray, e: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """:func:`_eccentric_anomaly` on consecutive blocks of rows at once (``starts``: where each begins):
-    each block iterates until its own steps are all below 1e-15 rad, as one call per block would, so
-    every value is the per-block call's."""
-    big_e = np.array(m, dtype=np.float64, copy=True)
-    blocks = _Blocks(starts, m.size)
-    for _ in range(30):
-        r = blocks.rows
-        b, es = big_e[r], e[r]
-        d = (b - es * np.sin(b) - m[r]) / (1.0 - es * np.cos(b))
-        big_e[r] = b - d
-        if not blocks.settle(np.logical_or.reduceat(~(np.abs(d) < 1e-15), blocks.starts)):
-            break
-    return big_e
-
-
-def _kepler_blocks(k: dict, t: np.ndarray, starts: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_kepler_position` for rows grouped in satellite blocks (``k``: :func:`_kepler_constants`
-    of those rows), position (K, 3) m and clock (K,) s, by the same operations."""
+def _kepler_rows(k: dict, t: np.ndarray, apply_tgd: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_kepler_position` for rows (``k``: :func:`_kepler_constants` of those rows), position (K, 3) m and
+    clock (K,) s, by the same operations, each row's Kepler equation iterated on its own."""
     tk = t - k["toe_gps_s"]
-    ek = _eccentric_anomaly_blocks(k["m0_rad"] + k["n"] * tk, k["e"], starts)
+    ek = _eccentric_anomaly(k["m0_rad"] + k["n"] * tk, k["e"])
     return _kepler_at_anomaly(k, t, tk, ek, apply_tgd)
 
 
 def _kepler_at_anomaly(k: dict, t: np.ndarray, tk: np.ndarray, ek: np.ndarray, apply_tgd: bool):
-    """The rest of :func:`_kepler_blocks` once the eccentric anomaly ``ek`` is known (``tk`` = t − toe):
+    """The rest of :func:`_kepler_rows` once the eccentric anomaly ``ek`` is known (``tk`` = t − toe):
     elementwise, so any slice of rows gives those rows' values."""
     e = k["e"]
     sin_e, cos_e = np.sin(ek), np.cos(ek)
@@ -878,32 +846,30 @@ def sat_positions_at_reception(nav: pd.DataFrame, sats, t_rx_gps_s, rx_ecef_m, *
         rx = np.ascontiguousarray(rx)
         order = np.ascontiguousarray(eph.order, dtype=np.int64)
         scratch = _Scratch(max(r1 - r0 for r0, r1, _ in chunks))
-    for r0, r1, starts in chunks:
+    for r0, r1, _ in chunks:
         o = eph.order[r0:r1]
         if packed is not None:
-            _light_time_compiled(packed, eph.nav_rows[r0:r1], t_true[o], rx, order[r0:r1], starts, apply_tgd, out,
-                                 scratch)
+            _light_time_compiled(packed, eph.nav_rows[r0:r1], t_true[o], rx, order[r0:r1], apply_tgd, out, scratch)
             continue
         k = {f: v[eph.nav_rows[r0:r1]] for f, v in eph.kepler.items()}
-        g = _light_time_blocks(k, t_true[o], rx[o] if rx.ndim == 2 else rx, starts, apply_tgd)
+        g = _light_time_rows(k, t_true[o], rx[o] if rx.ndim == 2 else rx, apply_tgd)
         for a, v in zip(out, g):
             a[o] = v
     return ReceptionGeometry(*out)
 
 
-def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.ndarray, apply_tgd: bool):
-    """The light-time iteration of :func:`sat_position_at_reception` on satellite blocks of rows, each
-    block stopping on its own test: (position (K, 3), clock, range, travel time)."""
+def _light_time_rows(k: dict, t_true: np.ndarray, rx: np.ndarray, apply_tgd: bool):
+    """The light-time iteration of :func:`sat_position_at_reception` on rows (``k``: their Kepler constants), each
+    row stopping on its own test: (position (K, 3), clock, range, travel time)."""
     n = t_true.size
     rot, clk, rng = np.empty((n, 3)), np.empty(n), np.empty(n)
     tau = np.full(n, 0.075)
-    blocks = _Blocks(starts, n)
     per_row = rx.ndim == 2
+    r = np.arange(n)                        # the rows still iterating
     for _ in range(10):
-        r = blocks.rows
-        sub = {f: v[r] for f, v in k.items()} if isinstance(r, np.ndarray) else k
+        sub = {f: v[r] for f, v in k.items()}
         tr = tau[r]
-        xyz, c_r = _kepler_blocks(sub, t_true[r] - tr, blocks.starts, apply_tgd)
+        xyz, c_r = _kepler_rows(sub, t_true[r] - tr, apply_tgd)
         theta = OMEGA_E_GPS * tr
         c, s = np.cos(theta), np.sin(theta)
         rot_r = np.stack([c * xyz[:, 0] + s * xyz[:, 1], -s * xyz[:, 0] + c * xyz[:, 1], xyz[:, 2]], axis=-1)
@@ -911,7 +877,8 @@ def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.n
         new_tau = rng_r / SPEED_OF_LIGHT_M_S
         step = np.abs(new_tau - tr)
         rot[r], clk[r], rng[r], tau[r] = rot_r, c_r, rng_r, new_tau
-        if not blocks.settle(~(np.maximum.reduceat(step, blocks.starts) < 1e-12)):
+        r = r[~(step < 1e-12)]
+        if not r.size:
             break
     return rot, clk, rng, tau
 
@@ -920,7 +887,7 @@ def _light_time_blocks(k: dict, t_true: np.ndarray, rx: np.ndarray, starts: np.n
 # the compiled kernel (cdgps_cli.model.gps._orbitcore): the same values as the numpy functions above
 # ----------------------------------------------------------------------------------------------
 
-_CORE_API = 3
+_CORE_API = 4
 _CORE_FIELDS = ("toe_gps_s", "m0_rad", "n", "e", "sqrt_1_e2", "omega_rad", "cus_rad", "cuc_rad", "a", "crs_m", "crc_m",
                 "i0_rad", "idot_rad_per_s", "cis_rad", "cic_rad", "omega0_rad", "node_rate", "node_toe", "geo", "we",
                 "toc_gps_s", "af0_s", "af1_s_per_s", "af2_s_per_s2", "rel", "tgd_s")
@@ -989,23 +956,28 @@ class _Scratch:
         self.yx = np.zeros((2, n))                           # finite values for np.arctan2 in rows not evaluated
         self.f = np.empty((4, n))                            # clock, travel time, time, true anomaly
         self.xyz = np.empty((n, 3))
+        self.each = np.arange(n, dtype=np.int64)             # every row a block of its own
+        self.live = np.empty(n, dtype=np.uint8)
 
-    def take(self, n: int, n_blocks: int) -> tuple:
-        """(state tuple for :func:`_core_kepler`, xyz, clock, τ = 0.075, time, true anomaly) for ``n`` rows."""
+    def take(self, n: int) -> tuple:
+        """(state tuple for :func:`_core_kepler`, xyz, clock, τ = 0.075, time, true anomaly, block starts) for
+        ``n`` rows, each row a block."""
         tau = self.f[1, :n]
         tau.fill(0.075)
-        return ((self.state[:n], self.info[:n], self.yx[0, :n], self.yx[1, :n], np.ones(n_blocks, dtype=np.uint8)),
-                self.xyz[:n], self.f[0, :n], tau, self.f[2, :n], self.f[3, :n])
+        live = self.live[:n]
+        live.fill(1)
+        return ((self.state[:n], self.info[:n], self.yx[0, :n], self.yx[1, :n], live),
+                self.xyz[:n], self.f[0, :n], tau, self.f[2, :n], self.f[3, :n], self.each[:n])
 
 
 def _light_time_compiled(kc: np.ndarray, rows: np.ndarray, t_true: np.ndarray, rx: np.ndarray, order: np.ndarray,
-                         starts: np.ndarray, apply_tgd: bool, out: tuple, scratch: _Scratch) -> None:
-    """:func:`_light_time_blocks` in C, written into rows ``order`` of ``out`` (position (N, 3), clock, range,
-    travel time), value for value.  ``kc``: :func:`_packed_constants` of the navigation table; ``rows``: each
-    row's ephemeris in it; ``t_true`` (K,) the rows' true reception times; ``rx`` (3,) or (N, 3)."""
+                         apply_tgd: bool, out: tuple, scratch: _Scratch) -> None:
+    """:func:`_light_time_rows` in C, written into rows ``order`` of ``out`` (position (N, 3), clock, range,
+    travel time), value for value: every row is a block of its own for the kernel, so it iterates Kepler's
+    equation and the light time on its own tests.  ``kc``: :func:`_packed_constants` of the navigation table;
+    ``rows``: each row's ephemeris in it; ``t_true`` (K,) the rows' true reception times; ``rx`` (3,) or (N, 3)."""
     rows = np.ascontiguousarray(rows, dtype=np.int64)
-    starts = np.ascontiguousarray(starts, dtype=np.int64)
-    state, xyz, clk, tau, t, nu = scratch.take(t_true.size, starts.size)
+    state, xyz, clk, tau, t, nu, starts = scratch.take(t_true.size)
     for it in range(10):
         _core_kepler(kc, rows, np.subtract(t_true, tau, out=t), starts, state, it > 0, apply_tgd, xyz, clk, nu)
         if not _orbitcore.light(xyz, clk, starts, state[4], tau, rx, rx.ndim == 2, order, *out, OMEGA_E_GPS,
