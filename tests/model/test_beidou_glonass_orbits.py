@@ -222,3 +222,17 @@ def test_broadcast_positions_obey_the_equations_of_motion(nav, sat):
     state = np.r_[x[1], x[2] - x[0]][None]
     end = glonass_orbit.glonass_position(state, np.zeros((1, 3)), [900.0], max_step_s=10.0)[0]
     assert np.linalg.norm(end[:3] - sat_position_ecef(r, t0 + 900.0)[0]) < 5.0
+
+
+def test_each_glonass_record_takes_its_own_steps():
+    """A record's integration depends on its own time alone (issue 29: a window of a record gives the whole
+    record's values): with records far from t_b beside it, a record near t_b gives the bits it gives alone, and a
+    time that is not finite gives NaN (it raised before) without touching the others."""
+    s0 = np.array([[1.9e7, 1.1e7, 4.0e6, 150.0, 2100.0, -2900.0]])
+    acc = np.array([[1e-7, -2e-7, 3e-7]])
+    dts = np.array([12.0, -900.0, 1795.0, np.nan, 61.0])
+    together = glonass_orbit.glonass_position(np.repeat(s0, dts.size, 0), np.repeat(acc, dts.size, 0), dts)
+    for i, dt in enumerate(dts):
+        alone = glonass_orbit.glonass_position(s0, acc, [dt])[0]
+        assert together[i].tobytes() == alone.tobytes()
+    assert np.isnan(together[3]).all() and np.isfinite(np.delete(together, 3, 0)).all()

@@ -91,7 +91,10 @@ def glonass_position(state0: np.ndarray, accel_ls: np.ndarray, dt_s, *, max_step
     dt = np.asarray(dt_s, dtype=np.float64).reshape(-1)
     if dt.size == 0:
         return s
-    steps = np.maximum(1, np.ceil(np.abs(dt) / max_step_s)).astype(np.int64)
+    span = np.abs(dt) / max_step_s
+    steps = np.ones(dt.size, dtype=np.int64)          # a time that is not finite: one step of it, NaN out
+    finite = np.isfinite(span)
+    steps[finite] = np.maximum(1.0, np.ceil(span[finite]))
     h = (dt / steps)[:, None]
     for k in range(int(steps.max())):
         go = np.flatnonzero(steps > k)          # the records still stepping (all of them while k < min(steps))
