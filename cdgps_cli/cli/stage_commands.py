@@ -353,7 +353,11 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
 
 @main.command(short_help="EKF (Eq. 16-23) [+ RTS smoother] → STATES.mcap")
 @click.argument("run_mcap", type=click.Path(dir_okay=False))
-@click.option("--init", "init_json", required=True, type=click.Path(dir_okay=False), help="INIT.json from 'cdgps init'.")
+@click.option("--init", "init_json", required=True, multiple=True, type=click.Path(dir_okay=False),
+              help="INIT.json from 'cdgps init'. A GNSS run's displacement estimate takes several (repeated, or a quoted "
+                   "glob pattern): INITs of windows of the run that do not overlap ('cdgps init --start --duration'), "
+                   "each serving its own window, read and solved one at a time, into one STATES (the random walk and "
+                   "constant velocity filtered and smoothed over all of them).")
 @click.option("--smooth", is_flag=True, help="Add a Rauch-Tung-Striebel smoothing pass (post-processing).")
 @click.option("--biases", type=click.Choice(["fixed", "states"]), default="fixed", show_default=True,
               help="fixed: biases from INIT; states: biases in the filter state (1995 variant).")
@@ -425,8 +429,22 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
     from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
+    from cdgps_cli.io.log_sequence import expand_paths
 
-    if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
+    init_jsons = expand_paths(init_json, "--init")
+    gnss_run = require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN        # (the file's metadata read once)
+    if len(init_jsons) > 1:
+        if not gnss_run or structure is not None or receiver_map or fuse or hold_out:
+            raise CdgpsError(f"--init given {len(init_jsons)} times: several INITs (windows of one record) serve only "
+                             f"a GNSS run's displacement estimate (no --structure / --receiver / --fuse)")
+        _estimate_gnss_windows(ctx, run_mcap, init_jsons, smooth, output, as_json, allow_other_run,
+                               _structure_only_given(biases, sigma_m, nis_probability, outlier_sigma,
+                                                     process_noise_scale, rest, rest_process_noise_scale, rest_retry_s,
+                                                     rest_window_s, rest_dwell_s, structure, receiver_map,
+                                                     scene_exaggeration, covariance, foxglove_rate_hz))
+        return
+    init_json = init_jsons[0]
+    if gnss_run:
         with _init_named(init_json):
             _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json,
                            structure_only=_structure_only_given(biases, sigma_m, nis_probability, outlier_sigma,
@@ -1101,16 +1119,63 @@ def _estimate_gnss(ctx, run_mcap, init_json, smooth, output, as_json, structure_
     s = gnss_estimate(run, init, init_text, output, smooth=smooth,
                       progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)), extra_options=extra)
     s["init_run"] = pairing
-    _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start']} – {s['end']}), {s['kinematic_epochs']} single-epoch "
+    _say_gnss_estimate(ctx, s, output, run.cfg.displacement == "static", as_json)
+
+
+def _estimate_gnss_windows(ctx, run_mcap, init_jsons: list, smooth, output, as_json, allow_other_run, structure_only):
+    """``cdgps estimate RUN --init A --init B …`` on a GNSS run: the INITs of windows of the record, in time order,
+    each serving its own window, into one STATES (:func:`cdgps_cli.pipeline.gnss.gnss_estimate_windows`)."""
+    from cdgps_cli.core.gps_time import gps_time_str
+    from cdgps_cli.io.file_checks import read_init_json
+    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
+    from cdgps_cli.pipeline.gnss import EstimateWindow, gnss_estimate_windows, init_window
+
+    _reject_structure_options(structure_only, "'cdgps estimate'")
+    wins, pairings = [], []
+    for path in init_jsons:
+        with _init_named(path):
+            init, text = read_init_json(path)
+            pairings.append(_check_pairing(ctx, init, path, run_mcap, allow_other_run))
+            span = init_window(init)
+        if span is None:
+            raise CdgpsError(f"{path}: an INIT of the whole record, given with other INITs: several INITs must each be "
+                             f"made on a window of the record ('cdgps init --start S --duration D')")
+        wins.append((span, path, init, text))
+    wins.sort(key=lambda x: x[0][0])
+    for (a, pa, *_), (b, pb, *_) in zip(wins, wins[1:]):
+        if b[0] < a[1]:
+            raise CdgpsError(f"--init: {pa} ({gps_time_str(a[0])} – {gps_time_str(a[1])}) and {pb} ({gps_time_str(b[0])} "
+                             f"– {gps_time_str(b[1])}) overlap: each INIT must serve its own window of the record")
+    windows = [EstimateWindow(lambda span=span: read_gnss_run(run_mcap, columns=SOLVER_COLUMNS, window=span),
+                              init, text, str(path)) for span, path, init, text in wins]
+    extra = ({"allow_other_run": True, "init_run_sha256": [p["init_run_sha256"] for p in pairings]}
+             if allow_other_run else None)
+    _say(ctx, f"estimating {run_mcap} from {len(windows)} INITs (windows {gps_time_str(wins[0][0][0])} – "
+              f"{gps_time_str(wins[-1][0][1])}) …")
+    s = gnss_estimate_windows(windows, output, smooth=smooth,
+                              progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)),
+                              extra_options=extra)
+    s["init_run"] = pairings
+    _say_gnss_estimate(ctx, s, output, s["displacement_model"] == "static", as_json)
+
+
+def _say_gnss_estimate(ctx, s: dict, output, static: bool, as_json: bool) -> None:
+    """What ``cdgps estimate`` on a GNSS run says: the file, each rover's solution and scatter, notes, events,
+    warnings, and the JSON summary when asked."""
+    n_win = s.get("windows")
+    _say(ctx, f"wrote {output}: {s['epochs']} epochs ({s['start']} – {s['end']}"
+              + (f", {n_win} windows" if n_win else "") + f"), {s['kinematic_epochs']} single-epoch "
               f"solutions, {s['events']} events")
-    static = run.cfg.displacement == "static"
     for r, v in s["rovers"].items():               # (a moving rover's static solution: its states' origin, not its place)
         st = ", ".join(f"{k} {x:+.4f}" for k, x in v["static_enu_m"].items())
-        _say(ctx, f"  {r}: {v['solution']} ({v['n_fixed']}/{v['n_estimated']} integers), "
-                  f"{'static' if static else 'origin of the states (the static solution)'} (m) {st}")
+        _say(ctx, f"  {r}: {v['solution']} ({v['n_fixed']}/{v['n_estimated']} integers"
+                  + (f" in {n_win} windows" if n_win else "") + "), "
+                  + ("the first window's " if n_win else "")
+                  + f"{'static' if static else 'origin of the states (the static solution)'} (m) {st}")
         k = v["kinematic_rms_m"]
         if k:
-            _say(ctx, f"    single-epoch scatter about {'static' if static else 'that origin'} over {v['kinematic_epochs']} "
+            _say(ctx, f"    single-epoch scatter about {'static' if static else 'that origin'}"
+                      + (" (each window's own)" if n_win else "") + f" over {v['kinematic_epochs']} "
                       f"epochs: RMS E {k['e'] * 1e3:.1f} N {k['n'] * 1e3:.1f} U {k['u'] * 1e3:.1f} mm")
     for note in s.get("notes", []):
         _say(ctx, f"  note: {note}")

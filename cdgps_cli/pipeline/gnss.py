@@ -32,10 +32,16 @@ attached as ``gnss_config.toml``.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
 import math
+import tempfile
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
+from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -445,12 +451,18 @@ def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigm
 def _filtered(model, dyn, t: np.ndarray, P0: np.ndarray, smooth: bool):
     """The engine's forward filter of ``model`` under ``dyn`` from x = 0 ± ``P0`` (one update per epoch: the model is
     linear) and, when ``smooth``, its RTS pass: (x, P) smoothed (or filtered), (x, P) filtered, NIS (N,)."""
-    fr = filter_numpy(model, dyn, t, np.zeros(P0.shape[0]), P0, max_iterations=1, keep_rows=False)
+    fr = _forward(model, dyn, t, np.zeros(P0.shape[0]), P0)
     xf, pf = fr["x"], fr["P"]
     if not smooth:
         return xf, pf, xf, pf, fr["nis"]
     xs, ps = rts_smooth_indexed(np.array(xf), np.array(pf), *fr["transitions"])
     return xs, ps, xf, pf, fr["nis"]
+
+
+def _forward(model, dyn, t: np.ndarray, x0: np.ndarray, P0: np.ndarray):
+    """The engine's forward filter of ``model`` under ``dyn`` from the prior x0 ± P0 at the first epoch (one update
+    per epoch: the model is linear): x, P filtered, NIS and the transitions into each epoch."""
+    return filter_numpy(model, dyn, t, x0, P0, max_iterations=1, keep_rows=False)
 
 
 #: the largest |integer| (cycles) an INIT's ambiguity may hold: 2³¹ cycles of 19 cm are 400,000 km, far beyond
@@ -616,18 +628,82 @@ def solve_with_init_integers(run, init: dict, r: str, stations: dict):
     return res, w, rov, opt
 
 
+class EstimateWindow(NamedTuple):
+    """One INIT of ``cdgps estimate`` and the RUN read on its window: ``read()`` gives the run (read when its turn
+    comes, dropped after it), ``source`` names the INIT (its file) in events and messages."""
+
+    read: Callable
+    init: dict
+    init_text: str
+    source: str | None = None
+
+
 def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path, *, smooth: bool = False,
                   progress=None, extra_options: dict | None = None) -> dict:
-    """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap."""
+    """Per-epoch displacement states of every rover from INIT's integers → STATES.mcap (one INIT: see
+    :func:`gnss_estimate_windows`)."""
+    return gnss_estimate_windows([EstimateWindow(lambda: run, init, init_text)], out_path, smooth=smooth,
+                                 progress=progress, extra_options=extra_options)
+
+
+def gnss_estimate_windows(windows: list, out_path: str | Path, *, smooth: bool = False, progress=None,
+                          extra_options: dict | None = None) -> dict:
+    """Per-epoch displacement states of every rover from the integers of one or more INITs → one STATES.mcap.
+
+    Each INIT (:class:`EstimateWindow`, in time order, made on windows of one RUN that do not overlap:
+    ``cdgps init --start/--duration``) serves its own window, which is read and solved alone, so the memory is that
+    of one window whatever the record's length (issue 29).  The random-walk and constant-velocity states are one
+    filter over all the windows: each window starts from the previous window's last state, predicted over the seam
+    and moved into the window's own origin (its static solution), and ``smooth`` runs the RTS pass over all of them;
+    the static model's states are each window's static solution.  One INIT gives what it always gave, byte for
+    byte."""
     say = progress or (lambda m: None)
+    if not windows:
+        raise CdgpsError("estimate: no INIT given")
+    passes, carried, frames = [], {}, {}
+    several = len(windows) > 1           # (one window: its rows stay in memory, as always; several: on disk)
+    with (tempfile.TemporaryDirectory(dir=Path(out_path).resolve().parent, prefix=".cdgps-estimate-") if several
+          else contextlib.nullcontext()) as tmp:
+        spill = Path(tmp) if several else None
+        for k, win in enumerate(windows):
+            if len(windows) > 1:
+                say(f"window {k + 1} of {len(windows)}" + (f" ({win.source})" if win.source else "") + " …")
+            try:
+                passes.append(_forward_window(win, smooth, carried, frames, say, spill))
+            except CdgpsError as exc:          # (several INITs: the one whose window failed is named)
+                msg = str(exc)
+                if len(windows) > 1 and win.source and msg.startswith("INIT.json"):
+                    raise CdgpsError(f"{win.source}{msg[len('INIT.json'):]}") from None
+                raise
+        return _write_windows(passes, windows, out_path, smooth, extra_options, say)
+
+
+class _WindowPass(NamedTuple):
+    """What one window leaves for the passes after it: its axis and arrays (:class:`_EstimateArrays`, states not yet
+    smoothed), per rover its forward track (None: static) and the inputs of its DD residuals, and what the
+    STATES metadata and summary say of it."""
+
+    a: "_EstimateArrays"
+    tracks: dict
+    residual_inputs: dict
+    summary_rovers: dict
+    events: list
+    notes: list
+    signals: dict
+    run_info: SimpleNamespace
+
+
+def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: dict, say, spill: Path | None) -> _WindowPass:
+    """One window: each rover's baseline at INIT's integers, its single-epoch solutions, and its forward filter from
+    the state ``carried`` out of the previous window (updated here); the states held in the first window's origin
+    (``frames``, per rover)."""
+    run, init = win.read(), win.init
     _check_init_of_run(init, run)
     _check_moving_float_init(init)
     stations = _stations(run)
     _check_master_position(run)
     model = run.cfg.displacement
-    per = {}
-    events: list[dict] = []
-    noise = {}
+    per, events, noise = {}, [], {}
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: INIT's solution and integers, {model} states …")
         res, w, rov, _ = solve_with_init_integers(run, init, r, stations)
@@ -636,44 +712,187 @@ def gnss_estimate(run: GnssRun, init: dict, init_text: str, out_path: str | Path
             _scale_phase_variances(w, noise[r]["factor"])
         per[r] = (res, w, rov)
         events.extend(_events(r, run.master, res, w))
+    signals = _signals_summary(run, {r: v[0] for r, v in per.items()})
     # common time axis: every matched epoch of any rover
     t_all = np.unique(np.concatenate([w["data"].t_label for _, w, _ in per.values()]))
     names = [f"{r}_{c}" for r in run.rovers for c in "enu"]
     a = _EstimateArrays(t_all, len(names), len(run.rovers), model != "static" and smooth,
                         rates=model == "constant_velocity")
-    summary_rovers = {}
+    summary_rovers, tracks, residual_inputs = {}, {}, {}
     for j, r in enumerate(run.rovers):
         res, w, _ = per[r]
         sl = slice(3 * j, 3 * j + 3)
         idx = np.searchsorted(t_all, w["data"].t_label)
-        dx, groups, n_blind = _rover_states(a, w, res, sl, idx, model, run.cfg, smooth)
-        a.residuals(r, w, dx, groups, idx)
+        frames.setdefault(r, np.asarray(w["x_final"], dtype=np.float64))
+        track, groups, n_blind = _rover_forward(a, w, sl, idx, model, run.cfg, res, carried.get(r), frames[r])
+        if track is not None:
+            carried[r] = track.last()
+        tracks[r] = track
+        ri = _residual_inputs(w, groups)
+        residual_inputs[r] = (ri if spill is None else _SpilledInputs(ri, spill / f"{len(list(spill.iterdir()))}.npz"), idx)
         a.kinematic(w["kinematic"], idx, sl, j)
         n_fix = n_fixed_with_glonass(res["ambiguities"])
         summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size), n_fixed_with_glonass=n_fix,
                                  epochs_without_fixed_dd=n_blind if n_fix else int(idx.size),
                                  **({"phase_noise": noise[r]} if r in noise else {}))
+        per[r] = None                    # (the rover's rows: what the later passes need is in residual_inputs)
+    info = SimpleNamespace(cfg=run.cfg, master=run.master, rovers=list(run.rovers), path=run.path,
+                           antennas=antennas_summary(run) if run.antex is not None else None, names=names,
+                           window=init_window(init))
+    return _WindowPass(a, tracks, residual_inputs, summary_rovers, events,
+                       [_phase_noise_note(r, v) for r, v in noise.items()], signals, info)
+
+
+def _joined_arrays(passes: list) -> "_EstimateArrays":
+    """The windows' arrays on one axis (their axes one after the other; the first window's object when alone)."""
+    if len(passes) == 1:
+        return passes[0].a
+    parts = [p.a for p in passes]
+    a = _EstimateArrays(np.concatenate([x.t for x in parts]), parts[0].nq, parts[0].kin_n.shape[1], parts[0].qf is not None,
+                        rates=parts[0].q.shape[1] > parts[0].nq)
+    for f in ("q", "P", "qf", "Pf", "kq", "kP", "kin_n", "kin_pdop", "nis_sum", "dof_tot"):
+        if getattr(a, f) is not None:
+            setattr(a, f, np.concatenate([getattr(x, f) for x in parts]))
+    return a
+
+
+def _joined_transitions(tracks: list) -> tuple:
+    """The transitions into every epoch of the windows' tracks on one axis: each window's own, and into each later
+    window's first epoch the dynamics over the seam."""
+    pairs, pair_of = [], []
+    for k, tr in enumerate(tracks):
+        tp, to = tr.transitions
+        of = np.asarray(to, dtype=np.int64) + len(pairs)
+        pairs.extend(tp)
+        if k:
+            A, _, Q = tr.dyn.transition(float(tr.t[0] - tracks[k - 1].t[-1]))
+            n = tr.x.shape[1]
+            pairs.append((np.eye(n) if A is None else np.asarray(A, dtype=np.float64),
+                          np.zeros((n, n)) if Q is None else np.asarray(Q, dtype=np.float64)))
+            of[0] = len(pairs) - 1
+        pair_of.append(of)
+    return pairs, np.concatenate(pair_of)
+
+
+def _final_states(a: "_EstimateArrays", passes: list, rover: str, smooth: bool) -> list:
+    """A moving rover's states on the joined axis ``a``: its windows' forward tracks, smoothed over all of them when
+    ``smooth`` (in the first window's origin), with their filtered states beside; returns each window's
+    displacement from its own static solution at the rover's epochs (for its DD residuals)."""
+    tracks = [p.tracks[rover] for p in passes]
+    first = tracks[0]
+    xf = first.x if len(tracks) == 1 else np.concatenate([tr.in_frame() for tr in tracks])
+    pf = first.P if len(tracks) == 1 else np.concatenate([tr.P for tr in tracks])
+    if smooth:
+        xs, ps = rts_smooth_indexed(np.array(xf), np.array(pf), *(first.transitions if len(tracks) == 1
+                                                                    else _joined_transitions(tracks)))
+    else:
+        xs, ps = xf, pf
+    cols = first.cols
+    a.q[:, cols] = first.origin + xs
+    a.P[:, cols[:, None], cols] = ps
+    if a.qf is not None:
+        a.qf[:, cols] = first.origin + xf
+        a.Pf[:, cols[:, None], cols] = pf
+    out, start = [], 0
+    for p, tr in zip(passes, tracks):
+        x = xs[start:start + tr.t.size, :3]
+        _, idx = p.residual_inputs[rover]
+        out.append(x[idx] if tr.shift is None else x[idx] - tr.shift[:3])
+        start += tr.t.size
+    return out
+
+
+def _joined_residuals(passes: list, n: int, dxs: dict) -> tuple:
+    """The DD residual columns (rover, satellite) of every window on the joined axis of ``n`` epochs: each rover's
+    satellites in the order the windows first hold them."""
+    cols, index = [], {}
+    for r in passes[0].run_info.rovers:
+        for p in passes:
+            for s_name in p.residual_inputs[r][0].sat_names:
+                if (r, s_name) not in index:
+                    index[(r, s_name)] = len(cols)
+                    cols.append((r, s_name))
+    vals = np.full((n, len(cols)), np.nan)
+    start = 0
+    for k, p in enumerate(passes):
+        for r in p.run_info.rovers:
+            ri, idx = p.residual_inputs[r]
+            ri = ri.load() if isinstance(ri, _SpilledInputs) else ri
+            dx = dxs[r][k] if r in dxs else np.zeros((ri.n_epochs, 3))
+            tab = _residual_table(ri, dx)
+            for s_i, s_name in enumerate(ri.sat_names):
+                vals[start + idx, index[(r, s_name)]] = tab[:, s_i]
+        start += p.a.t.size
+    return cols, vals
+
+
+def _window_events(passes: list, windows: list) -> list:
+    """Every window's events, and where a later window begins the INIT that serves it, in time order."""
+    events = [e for p in passes for e in p.events]
+    for k in range(1, len(passes)):
+        src = windows[k].source or f"INIT {k + 1}"
+        for r in passes[k].run_info.rovers:
+            events.append({"time_s": float(passes[k].a.t[0]), "antenna": r, "transmitter": "-",
+                           "kind": "next window (INIT)", "action": f"integers and static solution of {src}"
+                                                                    + ("; states carried over the seam"
+                                                                       if passes[k].tracks.get(r) is not None else "")})
     events.sort(key=lambda e: (e["time_s"], e["antenna"], e["transmitter"], e["kind"]))
+    return events
+
+
+def _joined_summary(passes: list, windows: list) -> dict:
+    """The STATES metadata's rover entries: one window's as always; several windows' first entry with the totals of
+    epochs and integers and every window's own entry under ``windows``."""
+    if len(passes) == 1:
+        return passes[0].summary_rovers
+    out = {}
+    for r in passes[0].run_info.rovers:
+        each = [dict(p.summary_rovers[r], window=dict(zip(("start_gps_s", "end_gps_s"), p.run_info.window or (None, None))),
+                     init=w.source) for p, w in zip(passes, windows)]
+        tot = {k: int(sum(e[k] for e in each)) for k in ("epochs", "n_fixed", "n_estimated", "n_fixed_with_glonass",
+                                                          "epochs_without_fixed_dd", "kinematic_epochs")}
+        kin = [(e["kinematic_epochs"], e["kinematic_rms_m"]) for e in each if e["kinematic_rms_m"]]
+        n_kin = sum(n for n, _ in kin)          # the single-epoch scatter about each window's own static solution
+        rms = ({c: math.sqrt(sum(n * v[c] ** 2 for n, v in kin) / n_kin) for c in "enu"} if n_kin else None)
+        out[r] = dict(each[0], **tot, kinematic_rms_m=rms, kinematic_rms_pdop_le_max_m=None, windows=each)
+        out[r].pop("window", None)
+        out[r].pop("init", None)
+    return out
+
+
+def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_options: dict | None, say) -> dict:
+    """The windows' states on one axis, smoothed over all of them, their residuals and events → STATES.mcap."""
+    info = passes[0].run_info
+    model, names = info.cfg.displacement, info.names
+    a = _joined_arrays(passes)
+    if np.any(np.diff(a.t) <= 0):
+        raise CdgpsError("estimate: the INITs' windows overlap (each INIT must serve its own span of the record)")
+    dxs = {r: _final_states(a, passes, r, smooth) for r in info.rovers if passes[0].tracks.get(r) is not None}
+    res_cols, residual_m = _joined_residuals(passes, a.n, dxs)
+    events = _window_events(passes, windows)
+    summary_rovers = _joined_summary(passes, windows)
     say(f"writing {out_path} …")
     meta_extra = {"rovers": summary_rovers,
-                  "options": {**_signals_summary(run, {r: v[0] for r, v in per.items()}), **(extra_options or {}),
-                              **({"antennas": antennas_summary(run)} if run.antex is not None else {})}}
-    residual_m = np.column_stack(a.res_vals) if a.res_vals else np.zeros((t_all.size, 0))
-    out = _write_gnss_states(run, init, init_text, out_path, names, t_all, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
-                             a.kin_pdop, a.res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
+                  "options": {**passes[0].signals, **(extra_options or {}),
+                              **({"antennas": info.antennas} if info.antennas is not None else {})}}
+    inits = [(w.init, w.init_text, w.source) for w in windows]
+    out = _write_gnss_states(info, inits, out_path, names, a.t, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
+                             a.kin_pdop, res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
                              events, smooth and model != "static", meta_extra)
-    notes = [_phase_noise_note(r, v) for r, v in noise.items()]
+    notes = [n for p in passes for n in p.notes]
     if model == "random_walk":
-        for j, r in enumerate(run.rovers):
-            band = random_walk_passband_hz(run.cfg.random_walk_sigma, a.kP[:, 3 * j:3 * j + 3, 3 * j:3 * j + 3],
-                                           t_all, smooth)
+        for j, r in enumerate(info.rovers):
+            band = random_walk_passband_hz(info.cfg.random_walk_sigma, a.kP[:, 3 * j:3 * j + 3, 3 * j:3 * j + 3],
+                                           a.t, smooth)
             if band is not None:
                 summary_rovers[r]["random_walk_passband_hz"] = dict(zip("enu", band))
-                notes.append(_passband_note(r, run.cfg.random_walk_sigma, band, smooth))
+                notes.append(_passband_note(r, info.cfg.random_walk_sigma, band, smooth))
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names, "notes": notes,
                 "warnings": _blind_warnings(summary_rovers, model) + _misfit_warnings(out.get("mean_nis_per_dof"),
                                                                                       model)
                 + ([STATIC_SMOOTH_NOTE] if smooth and model == "static" else [])})
+    if len(passes) > 1:
+        out["windows"] = len(passes)
     return out
 
 
@@ -866,23 +1085,6 @@ class _EstimateArrays:
         self.kin_n = np.zeros((n, n_rovers), dtype=np.int64)
         self.kin_pdop = np.full((n, n_rovers), np.nan)
         self.nis_sum, self.dof_tot = np.zeros(n), np.zeros(n, dtype=np.int64)
-        self.res_cols, self.res_vals = [], []
-
-    def residuals(self, r: str, w: dict, dx, groups, idx) -> None:
-        """Rover ``r``'s DD residuals (m) of the reported estimate (``dx`` (epochs, 3) from the static solution),
-        per satellite, each group's DDs against its own reference."""
-        d = w["data"]
-        e = w["r_ph"] - np.einsum("ic,ic->i", w["g"], dx[d.epoch])
-        tab = np.full((d.t_label.size, len(d.sat_names)), np.nan)
-        for u, ref in groups:
-            ref_row = ref[d.epoch]
-            ok = u & (ref_row >= 0) & (np.arange(e.size) != ref_row)
-            tab[d.epoch[ok], d.sat[ok]] = (e - e[np.maximum(ref_row, 0)])[ok]
-        for s_i, s in enumerate(np.array(d.sat_names, dtype=object)):
-            self.res_cols.append((r, s))
-            col = np.full(self.n, np.nan)
-            col[idx] = tab[:, s_i]
-            self.res_vals.append(col)
 
     def kinematic(self, ka: dict | None, idx, sl: slice, j: int) -> None:
         """Rover j's single-epoch positions (``w["kinematic"]``), where it has them."""
@@ -895,11 +1097,59 @@ class _EstimateArrays:
         self.kin_pdop[ki, j] = ka["pdop"]
 
 
-def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model: str, cfg, smooth: bool):
-    """One rover's states into ``a`` (columns ``sl``) at every epoch of the common axis, its own (``idx``) and the
-    other rovers' (a rover without observations there: the static solution, which holds at any epoch, or the random
-    walk carried through the gap by the filter and smoother, its σ growing); its NIS and degrees of freedom added
-    at its own epochs.  Returns the displacement from the static solution at its epochs (m), the signal groups
+def _displacement_dynamics(dd: SatelliteDDDisplacement, model: str, cfg):
+    """(measurement model, dynamics, prior covariance at the first epoch) of a moving rover's states: the random
+    walk of the displacements (3 states), or constant velocity [displacement, velocity] (6) with the DDs seeing the
+    displacements alone (:func:`_random_walk`, :func:`_constant_velocity`)."""
+    p0 = cfg.initial_sigma_m
+    if model == "random_walk":
+        return dd, RandomWalk(3, cfg.random_walk_sigma), np.eye(3) * p0**2
+    from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
+    from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
+    return Stacked([("dd", dd)], n_state=6), ConstantVelocity(3, cfg.accel_sigma_m_per_s_per_sqrt_s), np.eye(6) * p0**2
+
+
+class _RoverTrack(NamedTuple):
+    """A moving rover's forward filter over one window: its columns in the states, the window's origin (its static
+    solution; zero velocities), the origin's offset from the first window's (None in the first window), the
+    filtered x (N, nx) about the window's origin and P, the transitions into each epoch, the axis and dynamics."""
+
+    cols: np.ndarray
+    origin: np.ndarray
+    shift: np.ndarray | None
+    x: np.ndarray
+    P: np.ndarray
+    transitions: tuple
+    t: np.ndarray
+    dyn: object
+
+    def in_frame(self) -> np.ndarray:
+        """x about the first window's origin (the frame every window's states are smoothed in)."""
+        return self.x if self.shift is None else self.x + self.shift
+
+    def last(self) -> tuple:
+        """(time, x about the first window's origin, P) of the last epoch: the next window's start."""
+        return float(self.t[-1]), self.in_frame()[-1], self.P[-1]
+
+
+def _prior_from(carried: tuple | None, t0: float, dyn, P0: np.ndarray, shift: np.ndarray | None) -> tuple:
+    """The prior (x about this window's origin, P) at its first epoch ``t0``: x = 0 ± P0 for the first window; else
+    the previous window's last state (``carried``, about the first window's origin) predicted over the seam."""
+    if carried is None:
+        return np.zeros(P0.shape[0]), P0
+    t_last, x_last, P_last = carried
+    A, _, Q = dyn.transition(float(t0 - t_last))
+    A = np.eye(P0.shape[0]) if A is None else np.asarray(A, dtype=np.float64)
+    Q = np.zeros_like(P0) if Q is None else np.asarray(Q, dtype=np.float64)
+    x = A @ x_last
+    return (x if shift is None else x - shift), A @ P_last @ A.T + Q
+
+
+def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg, res: dict, carried, frame):
+    """One rover's forward pass over a window into ``a`` (columns ``sl``; its own epochs at ``idx``, the other
+    rovers' epochs predicted): the static model's states (the static solution at every epoch) or the moving models'
+    forward filter from ``carried`` (:func:`_prior_from`; ``frame``: the first window's static solution).  Its NIS
+    and degrees of freedom are added at its own epochs.  Returns its track (None: static), the signal groups
     (usable rows, references) and how many of its epochs have no DD of known ambiguities."""
     d, x_fin = w["data"], w["x_final"]
     known = w["known_seg"] | w.get("glonass_known", False)      # (a glonass_fix solution's GLONASS DDs too)
@@ -907,10 +1157,10 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
     use = known[w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
     c, dof, has, groups = _epoch_information(w, use)
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
+    track = None
     if model == "static":
         a.q[:, sl] = x_fin
         a.P[:, sl, sl] = w["q_final"]
-        dx = np.zeros((d.t_label.size, 3))
         nis = np.where(has, c, np.nan)
     else:
         ptr = _pointers_on_axis(d.ptr, idx, a.n)
@@ -919,21 +1169,56 @@ def _rover_states(a: _EstimateArrays, w: dict, res: dict, sl: slice, idx, model:
             ref_all = np.full(a.n, -1, dtype=np.int64)
             ref_all[idx] = ref
             obs.append(SDObservations(w["r_ph"], w["var_ph"], ref_all, usable=u))
-        dd = SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs)
-        xs, ps, xf, pf, nis_all = (
-            _random_walk(dd, a.t, cfg.random_walk_sigma, cfg.initial_sigma_m, smooth) if model == "random_walk" else
-            _constant_velocity(dd, a.t, cfg.accel_sigma_m_per_s_per_sqrt_s, cfg.initial_sigma_m, smooth))
-        cols = np.r_[np.arange(sl.start, sl.stop), a.nq + np.arange(sl.start, sl.stop)][:xs.shape[1]]
-        origin = np.r_[x_fin, np.zeros(xs.shape[1] - 3)]        # (the velocities' origin: 0)
-        a.q[:, cols] = origin + xs
-        a.P[:, cols[:, None], cols] = ps
-        dx, nis = xs[idx, :3], nis_all[idx]
-        if a.qf is not None:
-            a.qf[:, cols] = origin + xf
-            a.Pf[:, cols[:, None], cols] = pf
+        meas, dyn, P0 = _displacement_dynamics(SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs), model, cfg)
+        nx = P0.shape[0]
+        cols = np.r_[np.arange(sl.start, sl.stop), a.nq + np.arange(sl.start, sl.stop)][:nx]
+        origin = np.r_[x_fin, np.zeros(nx - 3)]               # (the velocities' origin: 0)
+        shift = None if carried is None else np.r_[x_fin - frame, np.zeros(nx - 3)]
+        x0, p0 = _prior_from(carried, float(a.t[0]), dyn, P0, shift)
+        fr = _forward(meas, dyn, a.t, x0, p0)
+        track = _RoverTrack(cols, origin, shift, fr["x"], fr["P"], fr["transitions"], a.t, dyn)
+        nis = fr["nis"][idx]
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
-    return dx, groups, int(np.sum(~has))
+    return track, groups, int(np.sum(~has))
+
+
+def _residual_inputs(w: dict, groups) -> SimpleNamespace:
+    """What a rover's DD residual columns need once its states are final (:func:`_residual_table`)."""
+    d = w["data"]
+    return SimpleNamespace(epoch=d.epoch, n_epochs=int(d.t_label.size), sat=d.sat, sat_names=list(d.sat_names),
+                           r_ph=w["r_ph"], g=w["g"], groups=groups)
+
+
+class _SpilledInputs:
+    """:func:`_residual_inputs` kept in a scratch file until the residual pass (several windows: the rows of one
+    window at a time in memory); ``sat_names`` stays at hand, :meth:`load` gives the inputs back."""
+
+    def __init__(self, ri: SimpleNamespace, path: Path):
+        self.path, self.sat_names, self.n_epochs, self.n_groups = path, ri.sat_names, ri.n_epochs, len(ri.groups)
+        arrays = {"epoch": ri.epoch, "sat": ri.sat, "r_ph": ri.r_ph, "g": ri.g}
+        for k, (u, ref) in enumerate(ri.groups):
+            arrays[f"usable_{k}"], arrays[f"ref_{k}"] = u, ref
+        with open(path, "wb") as f:
+            np.savez(f, **arrays)
+
+    def load(self) -> SimpleNamespace:
+        with np.load(self.path) as z:
+            groups = [(z[f"usable_{k}"], z[f"ref_{k}"]) for k in range(self.n_groups)]
+            return SimpleNamespace(epoch=z["epoch"], n_epochs=self.n_epochs, sat=z["sat"], sat_names=self.sat_names,
+                                   r_ph=z["r_ph"], g=z["g"], groups=groups)
+
+
+def _residual_table(ri: SimpleNamespace, dx: np.ndarray) -> np.ndarray:
+    """A rover's DD residuals (m) of the reported estimate (``dx`` (its epochs, 3) from its window's static solution)
+    per epoch and satellite (``ri``: :func:`_residual_inputs`), each group's DDs against its own reference."""
+    e = ri.r_ph - np.einsum("ic,ic->i", ri.g, dx[ri.epoch])
+    tab = np.full((ri.n_epochs, len(ri.sat_names)), np.nan)
+    for u, ref in ri.groups:
+        ref_row = ref[ri.epoch]
+        ok = u & (ref_row >= 0) & (np.arange(e.size) != ref_row)
+        tab[ri.epoch[ok], ri.sat[ok]] = (e - e[np.maximum(ref_row, 0)])[ok]
+    return tab
 
 
 def _pointers_on_axis(ptr, idx, n: int) -> np.ndarray:
@@ -1034,19 +1319,27 @@ def _raised_walks(init: dict) -> dict:
     return {"init_random_walk_sigma_used_m_per_sqrt_s": used} if used else {}
 
 
-def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
+#: the STATES attachment listing every INIT of an estimate made from several (their file, window and sha256)
+INIT_WINDOWS_ATTACHMENT = "init_windows.json"
+
+
+def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
                        res_cols, residual_m, nis, nis_dof, events, smoothed, meta_extra) -> dict:
     """The displacement states as a :class:`~cdgps_cli.core.records.StateSeries` (x = q, C = I)
     through the one STATES writer :func:`cdgps_cli.io.states.write_states`; the single-epoch
-    solutions as the arrays-only series ``/cdgps/kinematic`` (with ``n_sat`` and ``pdop``)."""
+    solutions as the arrays-only series ``/cdgps/kinematic`` (with ``n_sat`` and ``pdop``).  ``inits``: the
+    (INIT, its text, its source) of each window; the first is the INIT of the metadata's provenance and of
+    ``init.json``, and several are listed in :data:`INIT_WINDOWS_ATTACHMENT` (their texts too)."""
     model = run.cfg.displacement
+    init, init_text = inits[0][0], inits[0][1]
     biases = []
-    for r in run.rovers:
-        for s in rover_segments(init, r):
-            if s["fixed"] and s["integer"] is not None:
-                lam = s.get("wavelength_m", GPS_L1_WAVELENGTH_M)
-                biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": lam * s["integer"],
-                               "from_gps_s": s["first_gps_s"]})
+    for one, _, _ in inits:
+        for r in run.rovers:
+            for s in rover_segments(one, r):
+                if s["fixed"] and s["integer"] is not None:
+                    lam = s.get("wavelength_m", GPS_L1_WAVELENGTH_M)
+                    biases.append({"antenna": r, "transmitter": s["sat"], "bias_m": lam * s["integer"],
+                                   "from_gps_s": s["first_gps_s"]})
     meta = {"cdgps_version": __version__, "created_by": "cdgps estimate", "kind": "gnss", "config_name": run.cfg.name,
             "config_sha256": run.cfg.sha256, **states_io.provenance(run.path, init_text),
             "options": json.dumps({"smooth": bool(smoothed), "displacement_model": model,
@@ -1054,7 +1347,7 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
                                    **({"accel_sigma_m_per_s_per_sqrt_s": run.cfg.accel_sigma_m_per_s_per_sqrt_s,
                                        "init_random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma)}
                                       if model == "constant_velocity" else {}),
-                                   **_raised_walks(init),
+                                   **{k: v for one, _, _ in inits for k, v in _raised_walks(one).items()},
                                    **meta_extra.get("options", {})},
                                   sort_keys=True),
             "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,
@@ -1073,6 +1366,11 @@ def _write_gnss_states(run, init, init_text, out_path, names, t, q, P, qf, Pf, k
                      series, list(res_cols), residual_m, nis, nis_dof, events, GPS_L1_WAVELENGTH_M)
     attachments = {GNSS_CONFIG_ATTACHMENT: (run.cfg.text.encode(), "application/toml"),
                    INIT_ATTACHMENT: (init_text.encode(), "application/json")}
+    if len(inits) > 1:
+        listed = [{"init": src, "window": one.get("window"), "init_sha256": hashlib.sha256(text.encode()).hexdigest(),
+                   "text": text} for one, text, src in inits]
+        attachments[INIT_WINDOWS_ATTACHMENT] = (json.dumps(listed, sort_keys=True).encode(), "application/json")
+        meta["init_windows"] = json.dumps([{k: v for k, v in e.items() if k != "text"} for e in listed], sort_keys=True)
     # Foxglove channels at every epoch (GNSS epochs are 1 s or longer: the arrays dominate the size)
     from cdgps_cli.pipeline.estimate_outputs import nis_bounds95  # noqa: PLC0415
 

@@ -1,0 +1,119 @@
+"""`cdgps estimate RUN --init A --init B …` on a GNSS run (issue 29): INITs of windows of one record, each serving its
+own window (read and solved alone, its rows on disk until the residual pass), into one STATES; the random walk and
+the constant velocity filtered over all the windows (each starts from the previous one's last state, predicted over
+the seam) and smoothed over all of them.
+
+The independent check: the whole record's estimate from the whole record's INIT.  Where the windows' integers are
+the whole record's, the two estimates differ only by where each INIT evaluated the rover's troposphere and its static
+solution (the linearisation point): states within 1 µm, σ within 1e-8 relative.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cdgps_cli.io.states import States
+from tests._shared import REPO_ROOT, run_cli
+
+DURATION_S = 900.0
+
+
+def _cli_ok(*args):
+    r = run_cli(*args)
+    assert r.exit_code == 0, r.output
+    return r
+
+
+@pytest.fixture(scope="module", params=["random_walk", "constant_velocity"])
+def record(request, tmp_path_factory):
+    """A simulated random-walking rover at 1 Hz with slips; its RUN, the whole record's INIT and two windows'."""
+    d = tmp_path_factory.mktemp(f"win-{request.param}")
+    _cli_ok("-q", "simulate-gnss", "--duration", DURATION_S, "--rate-hz", "1", "--random-walk", "0.002",
+            "--slips", "4", "--seed", "7", "-o", d / "sim")
+    cfg = d / "sim" / "config.toml"
+    cfg.write_text(cfg.read_text().replace('model = "static"', f'model = "{request.param}"'))
+    _cli_ok("-q", "ingest", "--config", cfg, "-o", d / "run.mcap")
+    _cli_ok("-q", "init", d / "run.mcap", "-o", d / "whole.json")
+    _cli_ok("-q", "init", d / "run.mcap", "--start", "0", "--duration", "450", "-o", d / "w1.json")
+    _cli_ok("-q", "init", d / "run.mcap", "--start", "450", "--duration", "450", "-o", d / "w2.json")
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", d / "whole.json", "--smooth", "-o", d / "whole.mcap")
+    return d, request.param
+
+
+def test_two_windows_give_the_whole_records_states(record):
+    d, model = record
+    r = _cli_ok("estimate", d / "run.mcap", "--init", d / "w2.json", "--init", d / "w1.json", "--smooth",
+                "-o", d / "two.mcap", "--json")
+    assert "2 windows" in r.stderr and "next window (INIT)" in r.stderr
+    s = json.loads(r.stdout)
+    assert s["windows"] == 2 and s["epochs"] == DURATION_S
+    whole, two = States(d / "whole.mcap"), States(d / "two.mcap")
+    assert two.time_s.tobytes() == whole.time_s.tobytes()
+    assert np.max(np.abs(two.q - whole.q)) < 1e-6
+    assert np.max(np.abs(two.sigma_q / whole.sigma_q - 1.0)) < 1e-8
+    assert abs(np.nanmean(two.nis) - np.nanmean(whole.nis)) < 1e-4 * np.nanmean(whole.nis)
+    # each window's integers and static solution: the metadata lists both, the totals add up
+    rov = json.loads(two.metadata["rovers"])["rover"]
+    assert [w["init"] for w in rov["windows"]] == [str(d / "w1.json"), str(d / "w2.json")]
+    assert rov["n_fixed"] == sum(w["n_fixed"] for w in rov["windows"]) and rov["epochs"] == DURATION_S
+    assert len(json.loads(two.metadata["init_windows"])) == 2
+    assert not list(d.glob(".cdgps-estimate-*"))                 # the windows' rows: removed with the command
+
+
+def test_without_smoothing_the_forward_filter_runs_on(record):
+    """Filtered only: the second window's first states come from the first window's filter, not from a fresh start
+    (whose σ would be the initial 10 m): they equal the whole record's forward filter."""
+    d, _ = record
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", d / "w1.json", "--init", d / "w2.json", "-o", d / "f2.mcap")
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", d / "whole.json", "-o", d / "f1.mcap")
+    a, b = States(d / "f1.mcap"), States(d / "f2.mcap")
+    assert np.max(np.abs(a.q - b.q)) < 1e-6 and np.max(np.abs(b.sigma_q / a.sigma_q - 1.0)) < 1e-8
+
+
+def test_a_glob_and_a_gap_between_windows(record, tmp_path):
+    """Windows named by a pattern, in time order whatever their names; a gap of 100 s between two windows is
+    predicted over (the σ after the gap above the σ before it, the filtered states)."""
+    d, _ = record
+    for name, start, dur in (("b", "0", "300"), ("a", "400", "500")):
+        _cli_ok("-q", "init", d / "run.mcap", "--start", start, "--duration", dur, "-o", tmp_path / f"g_{name}.json")
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", str(tmp_path / "g_*.json"), "-o", tmp_path / "gap.mcap")
+    st = States(tmp_path / "gap.mcap")
+    t = st.time_s - st.time_s[0]
+    assert st.q.shape[0] == 800 and not np.any((t >= 300) & (t < 400))
+    before, after = np.flatnonzero(t < 300)[-1], np.flatnonzero(t >= 400)[0]
+    assert np.all(st.sigma_q[after] > st.sigma_q[before])
+
+
+def test_the_static_model_is_each_windows_own_solution(tmp_path):
+    _cli_ok("-q", "simulate-gnss", "--duration", "400", "--rate-hz", "1", "--seed", "3", "-o", tmp_path / "sim")
+    _cli_ok("-q", "ingest", "--config", tmp_path / "sim" / "config.toml", "-o", tmp_path / "run.mcap")
+    for k in (0, 1):
+        _cli_ok("-q", "init", tmp_path / "run.mcap", "--start", 200 * k, "--duration", "200", "-o", tmp_path / f"i{k}.json")
+    _cli_ok("-q", "estimate", tmp_path / "run.mcap", "--init", tmp_path / "i0.json", "--init", tmp_path / "i1.json",
+            "-o", tmp_path / "s.mcap")
+    st = States(tmp_path / "s.mcap")
+    assert not np.array_equal(st.q[0], st.q[200])                # two static solutions, one per window
+    for k, rows in ((0, slice(0, 200)), (1, slice(200, 400))):
+        enu = json.loads((tmp_path / f"i{k}.json").read_text())["rovers"]["rover"]["baseline_enu_from_master_m"]
+        static = json.loads(st.metadata["rovers"])["rover"]["windows"][k]["static_enu_m"]
+        assert np.allclose(st.q[rows], list(static.values()), rtol=0, atol=0)
+        assert np.all(np.isfinite(enu))
+
+
+def test_windows_that_overlap_or_a_whole_record_init_are_refused(record, tmp_path):
+    d, _ = record
+    _cli_ok("-q", "init", d / "run.mcap", "--start", "400", "--duration", "100", "-o", tmp_path / "o.json")
+    out = tmp_path / "x.mcap"
+    r = run_cli("estimate", d / "run.mcap", "--init", d / "w1.json", "--init", tmp_path / "o.json", "-o", out)
+    assert r.exit_code == 2 and "overlap" in r.output and "w1.json" in r.output and "o.json" in r.output
+    r = run_cli("estimate", d / "run.mcap", "--init", d / "w1.json", "--init", d / "whole.json", "-o", out)
+    assert r.exit_code == 2 and "whole.json" in r.output and "whole record" in r.output
+    r = run_cli("estimate", d / "run.mcap", "--init", str(tmp_path / "nothing_*.json"), "-o", out)
+    assert r.exit_code == 2 and "matches no file" in r.output
+    r = run_cli("estimate", d / "run.mcap", "--init", d / "w1.json", "--init", d / "w2.json", "--structure",
+                REPO_ROOT / "configs" / "gnss-tower.toml", "-o", out)
+    assert r.exit_code == 2 and "several INITs" in r.output
+    assert not out.exists() and "Traceback" not in r.output
