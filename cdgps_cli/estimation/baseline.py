@@ -45,6 +45,7 @@ from cdgps_cli.core.checks import header_position_m
 from cdgps_cli.core.signals import SIGNALS
 from cdgps_cli.estimation.ambiguity import AmbiguityError, resolve
 from cdgps_cli.estimation.model_filter import filter_numpy
+from cdgps_cli.estimation.kalman import positive_definite
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
 from cdgps_cli.model.dynamics_models import RandomWalk, WithConstants
 from cdgps_cli.config.limits import MASK_DEG
@@ -928,6 +929,9 @@ def _float_random_walk(d: _Data, sg: "_Segments", w: "_Weights", fl: "_Float", o
     dyn = WithConstants(RandomWalk(3, opt.random_walk_sigma), n_amb)
     P0 = np.diag(np.r_[np.full(3, opt.initial_sigma_m**2), np.full(n_amb, AMBIGUITY_PRIOR_SIGMA_CYCLES**2)])
     fr = filter_numpy(model, dyn, d.t_label, np.zeros(3 + n_amb), P0, max_iterations=1, history=False, form="covariance")
+    if not positive_definite(fr["P"]):         # (rounding of a long record's covariance form: static_engine._long_filter)
+        fr = filter_numpy(model, dyn, d.t_label, np.zeros(3 + n_amb), P0, max_iterations=1, history=False,
+                          form="information")
     post = np.linalg.inv(fr["P"][3:, 3:])
     J = post - np.eye(n_amb) / AMBIGUITY_PRIOR_SIGMA_CYCLES**2
     J = 0.5 * (J + J.T)

@@ -33,7 +33,8 @@ import numpy as np
 
 from cdgps_cli.estimation import compiled
 
-__all__ = ["StepFilter", "iterated_update", "iterated_update_covariance", "predict", "update", "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
+__all__ = ["StepFilter", "iterated_update", "iterated_update_covariance", "predict", "update", "positive_definite",
+           "LAPACK_CHOLESKY", "NUMPY_INVERSE"]
 
 #: LAPACK potrf / potrs and scipy's solve_triangular, imported on first use: scipy's import
 #: (≈ 0.13 s) stays off the start-up of `cdgps rtk`, whose filter runs on this step too
@@ -444,3 +445,16 @@ def update(xb: np.ndarray, Pb: np.ndarray, residual_m, H, sigma_m=None, noise_ch
     xb = np.asarray(xb, dtype=float)
     w = _Whitened(*_whiten(residual_m, H, sigma_m, noise_chol), xb)
     return iterated_update(w, w, xb, np.asarray(Pb, dtype=float), 1)
+
+
+def positive_definite(P: np.ndarray) -> bool:
+    """Whether ``P`` is finite and its symmetric part positive definite (its Cholesky factor exists): what a
+    covariance must be, and what the covariance-form update can lose to rounding over a long record."""
+    P = np.asarray(P, dtype=np.float64)
+    if not np.all(np.isfinite(P)):
+        return False
+    try:
+        np.linalg.cholesky(0.5 * (P + P.T))
+    except np.linalg.LinAlgError:
+        return False
+    return True

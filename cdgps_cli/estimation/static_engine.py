@@ -22,7 +22,7 @@ import numpy as np
 
 from cdgps_cli.core import progress
 from cdgps_cli.estimation.driver import EpochGrid, GridDynamics, RecordingSink, drive
-from cdgps_cli.estimation.kalman import StepFilter
+from cdgps_cli.estimation.kalman import StepFilter, positive_definite
 from cdgps_cli.config.options import (FIXED_PHASE_UNIT_VARIANCE_MAX, FIXED_PHASE_WINDOW_S,
                                       FIXED_PHASE_WINDOW_UNIT_VARIANCE_MAX, GNSS_DEFAULTS, GNSS_WEIGHTINGS, IONO_WEIGHTED_MIN_SIGMA_M,
                                       MOVING_ROVER_FLOAT_M, MULTI_GNSS_DEFAULTS, ORIGIN_MOVE_SIGMAS,
@@ -134,12 +134,26 @@ def static_filter(rows, times_s, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float
     n += n_iono
     model = _model(rows, cols, base_xyz_m, origin_xyz_m, iono_cols)
     # only the last state is kept (a whole record's x, P per epoch: 86400 × 90² × 8 B = 5.6 GB for a 24 h pair)
-    sink = RecordingSink(len(times_s), n, history=False, keep_rows=False)
-    with progress.bar(len(times_s), "static baseline (filter)", unit="epoch") as bar:
-        # covariance-form update: O(n² m) an epoch for ≈ 90 states and ≈ 10 DD rows (information form: O(n³))
-        ctx = drive(GridDynamics(Static(n), times_s), [model], EpochGrid(np.asarray(times_s, float)),
-                    StepFilter(x0, P0, form="covariance"), sink=sink, max_iterations=max_iterations, progress=bar)
+    ctx = _long_filter(Static(n), model, times_s, x0, P0,
+                       lambda: RecordingSink(len(times_s), n, history=False, keep_rows=False), max_iterations,
+                       "static baseline (filter)")
     return ctx.step.x, ctx.step.P, cols
+
+
+def _long_filter(dyn, model, times_s, x0, P0, sink, max_iterations: int, what: str):
+    """:func:`drive` over every epoch, each update in covariance form (O(n² m) an epoch for ≈ 90 states and ≈ 10 DD
+    rows; the information form is O(n³)); where its last P is no longer positive definite (the covariance form
+    subtracts: over a long record, from a prior of 10³ cycles down to 10⁻⁴, rounding builds up — a 6 h 10 Hz
+    random-walking rover's 50 DD ambiguities came out with three eigenvalues of −3·10⁻⁸ cycles², and LAMBDA could
+    not start), the record is filtered again in information form, which only adds.  ``sink`` makes a fresh sink."""
+    for form in ("covariance", "information"):
+        with progress.bar(len(times_s), what + ("" if form == "covariance" else " again, information form"),
+                          unit="epoch") as bar:
+            ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)),
+                        StepFilter(x0, P0, form=form), sink=sink(), max_iterations=max_iterations, progress=bar)
+        if form == "information" or positive_definite(ctx.step.P):
+            return ctx
+    raise AssertionError("unreachable")
 
 
 def static_least_squares(rows, cols, n_state: int, base_xyz_m, origin_xyz_m, *, sigma_pos_m: float = 100.0,
@@ -479,9 +493,8 @@ def random_walk_float(rows, cols, times_s, base_xyz_m, origin_xyz_m, x_static, *
     x0[:3] = x_static[:3]
     dyn = WithConstants(EnuRandomWalk(sigma_rw, origin_xyz_m), n - 3)
     model = _model(rows, cols, base_xyz_m, origin_xyz_m, iono_cols)
-    with progress.bar(len(times_s), "static baseline (random-walk filter)", unit="epoch") as bar:
-        ctx = drive(GridDynamics(dyn, times_s), [model], EpochGrid(np.asarray(times_s, float)),
-                    StepFilter(x0, P0, form="covariance"), sink=RecordingSink(len(times_s), n, history=False), max_iterations=max_iterations, progress=bar)
+    ctx = _long_filter(dyn, model, times_s, x0, P0, lambda: RecordingSink(len(times_s), n, history=False),
+                       max_iterations, "static baseline (random-walk filter)")
     n_rows = int(ctx.nis_dof.sum())
     return RandomWalkFloat(ctx.step.x[3:n_arc_state].copy(), ctx.step.P[3:n_arc_state, 3:n_arc_state].copy(),
                            float(np.nansum(ctx.nis) / n_rows) if n_rows else math.nan)

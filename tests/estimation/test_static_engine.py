@@ -878,3 +878,39 @@ def test_code_clock_steps_are_not_restarts_nor_one_channels_blunder():
             "phase_sd_m": np.zeros(two), "code_sd_m": gen.normal(0, 0.5, two)}
     pair["code_sd_m"][2 * np.arange(3, 6)] += 70.0
     assert code_clock_steps(pair)["epoch"].size == 0
+
+
+def test_a_covariance_that_lost_positive_definiteness_is_filtered_again_in_information_form(run, monkeypatch):
+    """Over a long record the covariance-form update can round a covariance into an indefinite one (a 6 h 10 Hz
+    random-walking rover: three eigenvalues of −3e-8 cycles² among 50 DD ambiguities, and LAMBDA could not start);
+    the filter then runs again in information form.  Forced here: the first answer is judged indefinite, the second
+    (information form) is taken, and it is the normal equations' answer as the covariance form's is."""
+    from cdgps_cli.estimation import kalman, static_engine
+    rows, times, base_xyz, origin = run
+    forms, judged = [], []
+    real_step = static_engine.StepFilter
+
+    def step(x0, P0, form="information"):
+        forms.append(form)
+        return real_step(x0, P0, form=form)
+
+    def first_indefinite(P):
+        judged.append(P)
+        return len(judged) > 1 and kalman.positive_definite(P)
+
+    monkeypatch.setattr(static_engine, "StepFilter", step)
+    monkeypatch.setattr(static_engine, "positive_definite", first_indefinite)
+    x, P, cols = static_filter(rows, times, base_xyz, origin, max_iterations=2)
+    assert forms == ["covariance", "information"] and len(judged) == 1
+    x0, P0 = static_prior(rows, cols, x.size, 100.0, 1e3)
+    xb, Pb = static_normal_equations(rows, times.size, base_xyz, origin, x, x0, P0, cols=cols)
+    assert np.max(np.abs(xb[:3] - x[:3])) < 1e-7
+    np.testing.assert_allclose(np.sqrt(np.diag(Pb)[:3]), np.sqrt(np.diag(P)[:3]), rtol=1e-6)
+
+
+def test_positive_definite():
+    from cdgps_cli.estimation.kalman import positive_definite
+    assert positive_definite(np.diag([1.0, 1e-12, 3.0]))
+    assert not positive_definite(np.array([[1.0, 2.0], [2.0, 1.0]]))          # eigenvalues 3 and −1
+    assert not positive_definite(np.array([[1.0, np.nan], [np.nan, 1.0]]))
+    assert not positive_definite(np.zeros((2, 2)))
