@@ -16,7 +16,7 @@ import click
 from cdgps_cli import __version__
 from cdgps_cli.core import progress
 from cdgps_cli.io.atomic import INTERRUPTED_EXIT, TERMINATED_EXIT, Terminated, sigterm_raises
-from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.errors import AmbiguityError, CdgpsError
 from cdgps_cli.cli.guard import GuardedCommand
 
 
@@ -97,6 +97,9 @@ class _Group(click.Group):
             progress.close_all()
             click.echo("cdgps: interrupted (Ctrl-C); no partial output left", err=True)
             ctx.exit(INTERRUPTED_EXIT)
+        except AmbiguityError as exc:           # last line of defence: LAMBDA refused what a solver gave it
+            _fail(ctx, f"integer ambiguity resolution could not run: {exc} (the float solution's covariance; "
+                       f"please report it with the command and its input files)")
         except MemoryError:                     # last line of defence (inputs are bounded first)
             _fail(ctx, "out of memory: the inputs or options ask for more memory than this machine has "
                        "(a shorter --duration or a smaller input)")

@@ -10,6 +10,11 @@ class CdgpsError(Exception):
     """An error in the user's input, with a message that says where and what was expected."""
 
 
+class AmbiguityError(ValueError):
+    """Invalid input to, or failure of, integer ambiguity resolution (:mod:`cdgps_cli.estimation.ambiguity`; here so
+    that the command line names it without importing the numerics)."""
+
+
 def join_problems(header: str, problems: list[str]) -> str:
     """Format a list of problems as one message (gnss_lib_py style: list everything at once)."""
     if len(problems) == 1:

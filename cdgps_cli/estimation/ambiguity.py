@@ -41,6 +41,7 @@ import os
 import numpy as np
 
 from cdgps_cli.config.options import RATIO_THRESHOLD
+from cdgps_cli.core.errors import AmbiguityError  # noqa: F401 (defined there, raised and named here)
 
 try:
     from cdgps_cli.estimation import _lambdacore
@@ -100,8 +101,6 @@ SEARCH_MAX_NODES = 200_000
 SEARCH_NUMPY_LEVEL = 24
 
 
-class AmbiguityError(ValueError):
-    """Invalid input to, or failure of, integer ambiguity resolution."""
 
 
 class SearchLimitError(AmbiguityError):
