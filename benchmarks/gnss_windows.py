@@ -10,6 +10,11 @@ For each ``--hours`` H simulates a static pair at 10 Hz (``cdgps simulate-gnss -
     init, estimate  cdgps init run.mcap -o init.json; cdgps estimate run.mcap --init init.json -o states.mcap
     window k        cdgps init run.mcap --start k·W --duration W -o init-k.json;
                     cdgps estimate run.mcap --init init-k.json -o states-k.mcap      (W = --window-s)
+    joined          cdgps estimate run.mcap --init 'init-*.json' [--smooth] -o states-joined.mcap
+                    (every window's INIT into one STATES, a window at a time; --smooth with a moving model)
+
+``--model random_walk`` (or constant_velocity) ingests the pair with that displacement model (run-<model>.mcap,
+its INITs init-<model>-k.json), so that the joined estimate filters and smooths over the windows.
 
 and writes ``--out`` (JSON) with a markdown table: the whole record's init and estimate grow with it, a window's
 stay what a record of its length costs::
@@ -55,36 +60,55 @@ def _hourly_files(d: Path) -> Path:
     return cfg
 
 
+def _model_config(d: Path, model: str) -> str:
+    """The pair's config with ``[gnss.displacement] model`` set (config.toml itself for the simulator's static)."""
+    if model == "static":
+        return "config.toml"
+    cfg = d / f"config-{model}.toml"
+    cfg.write_text((d / "config.toml").read_text().replace('model = "static"', f'model = "{model}"'))
+    return cfg.name
+
+
 def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: bool = True,
-         hourly_files: bool = False) -> dict:
+         hourly_files: bool = False, model: str = "static") -> dict:
     d = simulated_pair(workdir / f"gnss10-{hours:g}h", hours, 10.0)
-    rec: dict = {"hours": hours, "rate_hz": 10.0, "window_s": window_s, "stages": {}, "windows": []}
-    steps = [("ingest", ["ingest", "--config", "config.toml", "-o", "run.mcap"]),
-             ("info", ["info", "--json", "run.mcap"])]
+    tag = "" if model == "static" else f"-{model}"
+    run, smooth = f"run{tag}.mcap", ([] if model == "static" else ["--smooth"])
+    rec: dict = {"hours": hours, "rate_hz": 10.0, "window_s": window_s, "model": model, "stages": {}, "windows": []}
+    steps = [("ingest", ["ingest", "--config", _model_config(d, model), "-o", run]),
+             ("info", ["info", "--json", run])]
     if whole:
-        steps += [("init", ["init", "run.mcap", "-o", "init.json"]),
-                  ("estimate", ["estimate", "run.mcap", "--init", "init.json", "-o", "states.mcap"])]
+        steps += [("init", ["init", run, "-o", f"init{tag}.json"]),
+                  ("estimate", ["estimate", run, "--init", f"init{tag}.json", *smooth, "-o", f"states{tag}.mcap"])]
     if hourly_files:
         steps.append(("ingest, hourly files", ["ingest", "--config", str(_hourly_files(d)), "-o", "run-files.mcap"]))
     for name, args in steps:
         r = _timed(args, cwd=d)
         rec["stages"][name] = r
         _say(hours, name, r)
-    for k in range(int(round(3600 * hours / window_s)) if windows else 0):
+    n_win = int(round(3600 * hours / window_s)) if windows else 0
+    for k in range(n_win):
         w = {"start_s": k * window_s}
-        for name, args in (("init", ["init", "run.mcap", "--start", str(k * window_s), "--duration", str(window_s),
-                                     "-o", f"init-{k}.json"]),
-                           ("estimate", ["estimate", "run.mcap", "--init", f"init-{k}.json", "-o", f"states-{k}.mcap"])):
+        for name, args in (("init", ["init", run, "--start", str(k * window_s), "--duration", str(window_s),
+                                     "-o", f"init{tag}-{k:03d}.json"]),
+                           ("estimate", ["estimate", run, "--init", f"init{tag}-{k:03d}.json", *smooth,
+                                         "-o", f"states{tag}-{k}.mcap"])):
             w[name] = _timed(args, cwd=d)
             _say(hours, f"window {k} {name}", w[name])
         rec["windows"].append(w)
+    if n_win:
+        r = _timed(["estimate", run, "--init", f"init{tag}-[0-9][0-9][0-9].json", *smooth, "-o",
+                    f"states{tag}-joined.mcap"], cwd=d)
+        rec["stages"]["estimate, joined windows"] = r
+        _say(hours, "estimate, joined", r)
     rec["run_mcap_mib"] = round((d / "run.mcap").stat().st_size / 2**20, 1)
     return rec
 
 
 def table(records: list[dict]) -> str:
     lines = ["| record (10 Hz) | ingest | ingest, hourly files | info | init whole | estimate whole | "
-             "init, a window (max) | estimate, a window (max) |", "|---|---|---|---|---|---|---|---|"]
+             "init, a window (max) | estimate, a window (max) | estimate, every window's INIT joined |",
+             "|---|---|---|---|---|---|---|---|---|"]
 
     def cell(r):
         return "—" if r is None else f"{r['peak_rss_mib']:.0f} MiB / {r['wall_s']:.1f} s"
@@ -94,7 +118,7 @@ def table(records: list[dict]) -> str:
         lines.append(f"| {rec['hours']:g} h | {cell(st.get('ingest'))} | {cell(st.get('ingest, hourly files'))} | "
                      f"{cell(st.get('info'))} | "
                      f"{cell(st.get('init'))} | {cell(st.get('estimate'))} | {cell(worst['init'])} | "
-                     f"{cell(worst['estimate'])} |")
+                     f"{cell(worst['estimate'])} | {cell(st.get('estimate, joined windows'))} |")
     return "\n".join(lines)
 
 
@@ -107,11 +131,14 @@ def main() -> None:
                     "antenna")
     ap.add_argument("--no-windows", action="store_true", help="leave out the windows' init and estimate (ingest and "
                     "info only: docs/benchmarks/gnss_ingest.json)")
+    ap.add_argument("--model", choices=("static", "random_walk", "constant_velocity"), default="static",
+                    help="the pair's [gnss.displacement] model (a moving one: estimate --smooth)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-gnss-windows"))
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows, a.hourly_files) for h in a.hours]
-    result = {"pair": "simulate-gnss --rate-hz 10 --slips 30 --seed 1 (static, GPS L1)",
+    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows, a.hourly_files, a.model)
+               for h in a.hours]
+    result = {"pair": f"simulate-gnss --rate-hz 10 --slips 30 --seed 1 (GPS L1; displacement model {a.model})",
               "machine": machine(), "python": platform.python_version(),
               "records": records, "table": table(records),
               "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: the "

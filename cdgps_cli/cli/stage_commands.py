@@ -429,7 +429,7 @@ def estimate(ctx, run_mcap, init_json, smooth, biases, sigma_m, nis_probability,
     single-epoch solutions, DD residuals and slip/reference events (docs/gnss-pipeline.md).
     """
     from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
-    from cdgps_cli.io.log_sequence import expand_paths
+    from cdgps_cli.io.file_patterns import expand_paths
 
     init_jsons = expand_paths(init_json, "--init")
     gnss_run = require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN        # (the file's metadata read once)

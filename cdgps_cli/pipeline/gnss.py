@@ -739,21 +739,74 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
     info = SimpleNamespace(cfg=run.cfg, master=run.master, rovers=list(run.rovers), path=run.path,
                            antennas=antennas_summary(run) if run.antex is not None else None, names=names,
                            window=init_window(init))
-    return _WindowPass(a, tracks, residual_inputs, summary_rovers, events,
-                       [_phase_noise_note(r, v) for r, v in noise.items()], signals, info)
+    out = _WindowPass(a, tracks, residual_inputs, summary_rovers, events,
+                      [_phase_noise_note(r, v) for r, v in noise.items()], signals, info)
+    return out if spill is None else _spill_window(out, spill)
 
 
-def _joined_arrays(passes: list) -> "_EstimateArrays":
-    """The windows' arrays on one axis (their axes one after the other; the first window's object when alone)."""
+_ARRAY_FIELDS = ("q", "P", "qf", "Pf", "kq", "kP", "kin_n", "kin_pdop", "nis_sum", "dof_tot")
+
+
+def _spill_window(p: "_WindowPass", spill: Path) -> "_WindowPass":
+    """A window's per-epoch arrays and filter tracks moved to a scratch file (several windows: one window's arrays
+    in memory at a time); what stays is its axis and the tracks' small parts."""
+    path = spill / f"window-{len(list(spill.glob('window-*')))}.npz"
+    arrays = {f: getattr(p.a, f) for f in _ARRAY_FIELDS if getattr(p.a, f) is not None}
+    for r, tr in p.tracks.items():
+        if tr is not None:
+            arrays[f"x:{r}"], arrays[f"P:{r}"] = tr.x, tr.P
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
+    kept = SimpleNamespace(t=p.a.t, n=p.a.n, nq=p.a.nq, path=path, n_rovers=p.a.kin_n.shape[1],
+                           filtered=p.a.qf is not None, nx=p.a.q.shape[1])
+    tracks = {r: None if tr is None else tr._replace(x=None, P=None) for r, tr in p.tracks.items()}
+    return p._replace(a=kept, tracks=tracks)
+
+
+def _joined_arrays(passes: list, hist) -> "_EstimateArrays":
+    """The windows' arrays on one axis (their axes one after the other): the first window's object when alone, else
+    arrays on disk (``hist``: :class:`cdgps_cli.io.scratch.DiskHistory`) filled a window at a time."""
     if len(passes) == 1:
         return passes[0].a
-    parts = [p.a for p in passes]
-    a = _EstimateArrays(np.concatenate([x.t for x in parts]), parts[0].nq, parts[0].kin_n.shape[1], parts[0].qf is not None,
-                        rates=parts[0].q.shape[1] > parts[0].nq)
-    for f in ("q", "P", "qf", "Pf", "kq", "kP", "kin_n", "kin_pdop", "nis_sum", "dof_tot"):
-        if getattr(a, f) is not None:
-            setattr(a, f, np.concatenate([getattr(x, f) for x in parts]))
+    first = passes[0].a
+    t = np.concatenate([p.a.t for p in passes])
+    a = SimpleNamespace(t=t, n=t.size, nq=first.nq)
+    n, nx, nr = t.size, first.nx, first.n_rovers
+    shapes = {"q": (n, nx), "P": (n, nx, nx), "qf": (n, nx), "Pf": (n, nx, nx), "kq": (n, nx), "kP": (n, nx, nx),
+              "kin_n": (n, nr), "kin_pdop": (n, nr), "nis_sum": (n,), "dof_tot": (n,)}
+    for f, shape in shapes.items():
+        keep = first.filtered or f not in ("qf", "Pf")
+        setattr(a, f, hist.empty(shape, np.int64 if f in ("kin_n", "dof_tot") else np.float64) if keep else None)
+    start = 0
+    for p in passes:
+        with np.load(p.a.path) as z:
+            for f in _ARRAY_FIELDS:
+                if getattr(a, f) is not None:
+                    getattr(a, f)[start:start + p.a.n] = z[f]
+                    hist.release(getattr(a, f), start, start + p.a.n)
+        start += p.a.n
     return a
+
+
+def _track_arrays(passes: list, rover: str, hist) -> tuple:
+    """A rover's filtered x (about the first window's origin) and P on the joined axis: its one window's own arrays,
+    or the windows' (from their scratch files) on disk."""
+    tracks = [p.tracks[rover] for p in passes]
+    if len(tracks) == 1:
+        return tracks[0].x, tracks[0].P
+    nx = tracks[0].cols.size
+    n = sum(tr.t.size for tr in tracks)
+    xf, pf = hist.empty((n, nx)), hist.empty((n, nx, nx))
+    start = 0
+    for p, tr in zip(passes, tracks):
+        with np.load(p.a.path) as z:
+            x = z[f"x:{rover}"]
+            xf[start:start + tr.t.size] = x if tr.shift is None else x + tr.shift
+            pf[start:start + tr.t.size] = z[f"P:{rover}"]
+        for arr in (xf, pf):
+            hist.release(arr, start, start + tr.t.size)
+        start += tr.t.size
+    return xf, pf
 
 
 def _joined_transitions(tracks: list) -> tuple:
@@ -766,7 +819,7 @@ def _joined_transitions(tracks: list) -> tuple:
         pairs.extend(tp)
         if k:
             A, _, Q = tr.dyn.transition(float(tr.t[0] - tracks[k - 1].t[-1]))
-            n = tr.x.shape[1]
+            n = tr.cols.size
             pairs.append((np.eye(n) if A is None else np.asarray(A, dtype=np.float64),
                           np.zeros((n, n)) if Q is None else np.asarray(Q, dtype=np.float64)))
             of[0] = len(pairs) - 1
@@ -774,37 +827,63 @@ def _joined_transitions(tracks: list) -> tuple:
     return pairs, np.concatenate(pair_of)
 
 
-def _final_states(a: "_EstimateArrays", passes: list, rover: str, smooth: bool) -> list:
+def _rows_in_chunks(n: int):
+    """Row ranges of :data:`~cdgps_cli.config.options.STATES_CHUNK_EPOCHS` epochs covering ``n``."""
+    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
+    return ((i, min(i + STATES_CHUNK_EPOCHS, n)) for i in range(0, n, STATES_CHUNK_EPOCHS))
+
+
+def _final_states(a, passes: list, rover: str, smooth: bool, hist) -> None:
     """A moving rover's states on the joined axis ``a``: its windows' forward tracks, smoothed over all of them when
-    ``smooth`` (in the first window's origin), with their filtered states beside; returns each window's
-    displacement from its own static solution at the rover's epochs (for its DD residuals)."""
+    ``smooth`` (in the first window's origin), with their filtered states beside."""
     tracks = [p.tracks[rover] for p in passes]
-    first = tracks[0]
-    xf = first.x if len(tracks) == 1 else np.concatenate([tr.in_frame() for tr in tracks])
-    pf = first.P if len(tracks) == 1 else np.concatenate([tr.P for tr in tracks])
+    first, several = tracks[0], len(tracks) > 1
+    xf, pf = _track_arrays(passes, rover, hist)
     if smooth:
-        xs, ps = rts_smooth_indexed(np.array(xf), np.array(pf), *(first.transitions if len(tracks) == 1
-                                                                    else _joined_transitions(tracks)))
+        if several:                 # (on disk: the smoother's passes release what they have finished)
+            xs, ps = hist.empty(xf.shape), hist.empty(pf.shape)
+            for i, j in _rows_in_chunks(xf.shape[0]):
+                xs[i:j], ps[i:j] = xf[i:j], pf[i:j]
+                for arr in (xs, ps, xf, pf):
+                    hist.release(arr, i, j)
+            rts_smooth_indexed(xs, ps, *_joined_transitions(tracks), chunk=_chunk_epochs(),
+                               on_done=lambda i, j: [hist.release(arr, i, j) for arr in (xs, ps)])
+        else:
+            xs, ps = rts_smooth_indexed(np.array(xf), np.array(pf), *first.transitions)
     else:
         xs, ps = xf, pf
     cols = first.cols
-    a.q[:, cols] = first.origin + xs
-    a.P[:, cols[:, None], cols] = ps
-    if a.qf is not None:
-        a.qf[:, cols] = first.origin + xf
-        a.Pf[:, cols[:, None], cols] = pf
-    out, start = [], 0
-    for p, tr in zip(passes, tracks):
-        x = xs[start:start + tr.t.size, :3]
-        _, idx = p.residual_inputs[rover]
-        out.append(x[idx] if tr.shift is None else x[idx] - tr.shift[:3])
-        start += tr.t.size
-    return out
+    for i, j in _rows_in_chunks(a.n) if several else [(0, a.n)]:
+        a.q[i:j, cols] = first.origin + xs[i:j]
+        a.P[i:j, cols[:, None], cols] = ps[i:j]
+        if a.qf is not None:
+            a.qf[i:j, cols] = first.origin + xf[i:j]
+            a.Pf[i:j, cols[:, None], cols] = pf[i:j]
+        for arr in (a.q, a.P, a.qf, a.Pf, xs, ps, xf, pf):
+            if arr is not None:
+                hist.release(arr, i, j)
+    return xs
 
 
-def _joined_residuals(passes: list, n: int, dxs: dict) -> tuple:
-    """The DD residual columns (rover, satellite) of every window on the joined axis of ``n`` epochs: each rover's
-    satellites in the order the windows first hold them."""
+def _chunk_epochs() -> int:
+    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
+    return STATES_CHUNK_EPOCHS
+
+
+def _window_dx(xs, passes: list, k: int, rover: str) -> np.ndarray:
+    """Window k's displacement of ``rover`` from its own static solution at the rover's epochs, from the states
+    ``xs`` (about the first window's origin) on the joined axis."""
+    start = sum(p.a.n for p in passes[:k])
+    tr = passes[k].tracks[rover]
+    _, idx = passes[k].residual_inputs[rover]
+    x = np.asarray(xs[start:start + passes[k].a.n, :3])[idx]
+    return x if tr.shift is None else x - tr.shift[:3]
+
+
+def _joined_residuals(passes: list, n: int, states: dict, hist) -> tuple:
+    """The DD residual columns (rover, satellite) of every window on the joined axis of ``n`` epochs (on disk with
+    several windows): each rover's satellites in the order the windows first hold them; ``states``: each moving
+    rover's states on the joined axis."""
     cols, index = [], {}
     for r in passes[0].run_info.rovers:
         for p in passes:
@@ -812,18 +891,49 @@ def _joined_residuals(passes: list, n: int, dxs: dict) -> tuple:
                 if (r, s_name) not in index:
                     index[(r, s_name)] = len(cols)
                     cols.append((r, s_name))
-    vals = np.full((n, len(cols)), np.nan)
+    vals = np.full((n, len(cols)), np.nan) if len(passes) == 1 else hist.empty((n, len(cols)))
     start = 0
     for k, p in enumerate(passes):
+        block = np.full((p.a.n, len(cols)), np.nan)
         for r in p.run_info.rovers:
             ri, idx = p.residual_inputs[r]
             ri = ri.load() if isinstance(ri, _SpilledInputs) else ri
-            dx = dxs[r][k] if r in dxs else np.zeros((ri.n_epochs, 3))
+            dx = _window_dx(states[r], passes, k, r) if r in states else np.zeros((ri.n_epochs, 3))
             tab = _residual_table(ri, dx)
             for s_i, s_name in enumerate(ri.sat_names):
-                vals[start + idx, index[(r, s_name)]] = tab[:, s_i]
-        start += p.a.t.size
+                block[idx, index[(r, s_name)]] = tab[:, s_i]
+        vals[start:start + p.a.n] = block
+        hist.release(vals, start, start + p.a.n)
+        start += p.a.n
     return cols, vals
+
+
+def _kinematic_series(a, hist, several: bool) -> tuple:
+    """The single-epoch solutions' series: (time, positions, covariances, satellite counts, PDOP) at the epochs with
+    a solution of some rover; a rover without one there has no covariance either (on disk with several windows)."""
+    have = ~np.all(np.isnan(a.kq), axis=1)
+    nq = a.nq                                   # (single-epoch solutions: positions only, no velocities)
+    if not several:
+        kP = a.kP.copy()
+        kP[np.isnan(a.kq)] = np.nan
+        return a.t[have], a.kq[have][:, :nq], kP[have][:, :nq, :nq], a.kin_n[have], a.kin_pdop[have]
+    m = int(have.sum())
+    kq, kP = hist.empty((m, nq)), hist.empty((m, nq, nq))
+    kn, kd = hist.empty((m, a.kin_n.shape[1]), np.int64), hist.empty((m, a.kin_pdop.shape[1]))
+    out = 0
+    for i, j in _rows_in_chunks(a.n):
+        h = have[i:j]
+        c = np.array(a.kP[i:j])
+        c[np.isnan(a.kq[i:j])] = np.nan
+        k = int(h.sum())
+        kq[out:out + k], kP[out:out + k] = a.kq[i:j][h][:, :nq], c[h][:, :nq, :nq]
+        kn[out:out + k], kd[out:out + k] = a.kin_n[i:j][h], a.kin_pdop[i:j][h]
+        for arr in (a.kq, a.kP, a.kin_n, a.kin_pdop):
+            hist.release(arr, i, j)
+        for arr in (kq, kP, kn, kd):
+            hist.release(arr, out, out + k)
+        out += k
+    return a.t[have], kq, kP, kn, kd
 
 
 def _window_events(passes: list, windows: list) -> list:
@@ -861,14 +971,20 @@ def _joined_summary(passes: list, windows: list) -> dict:
 
 
 def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_options: dict | None, say) -> dict:
-    """The windows' states on one axis, smoothed over all of them, their residuals and events → STATES.mcap."""
+    """The windows' states on one axis, smoothed over all of them, their residuals and events → STATES.mcap (with
+    several windows the joined arrays are on disk, beside the output, and read back a block at a time)."""
+    from cdgps_cli.io.scratch import DiskHistory  # noqa: PLC0415
+
     info = passes[0].run_info
     model, names = info.cfg.displacement, info.names
-    a = _joined_arrays(passes)
+    several = len(passes) > 1
+    hist = DiskHistory(Path(out_path).resolve().parent, out_path)
+    a = _joined_arrays(passes, hist)
     if np.any(np.diff(a.t) <= 0):
         raise CdgpsError("estimate: the INITs' windows overlap (each INIT must serve its own span of the record)")
-    dxs = {r: _final_states(a, passes, r, smooth) for r in info.rovers if passes[0].tracks.get(r) is not None}
-    res_cols, residual_m = _joined_residuals(passes, a.n, dxs)
+    states = {r: _final_states(a, passes, r, smooth, hist) for r in info.rovers if passes[0].tracks.get(r) is not None}
+    res_cols, residual_m = _joined_residuals(passes, a.n, states, hist)
+    del states
     events = _window_events(passes, windows)
     summary_rovers = _joined_summary(passes, windows)
     say(f"writing {out_path} …")
@@ -876,22 +992,25 @@ def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_op
                   "options": {**passes[0].signals, **(extra_options or {}),
                               **({"antennas": info.antennas} if info.antennas is not None else {})}}
     inits = [(w.init, w.init_text, w.source) for w in windows]
-    out = _write_gnss_states(info, inits, out_path, names, a.t, a.q, a.P, a.qf, a.Pf, a.kq, a.kP, a.kin_n,
-                             a.kin_pdop, res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
+    bands = {}
+    if model == "random_walk":        # (before the kinematic series is drawn out of a.kP)
+        for j, r in enumerate(info.rovers):
+            bands[r] = random_walk_passband_hz(info.cfg.random_walk_sigma, a.kP[:, 3 * j:3 * j + 3, 3 * j:3 * j + 3],
+                                               a.t, smooth)
+            hist.release(a.kP, 0, a.n)
+    out = _write_gnss_states(info, inits, out_path, names, a.t, a.q, a.P, a.qf, a.Pf, _kinematic_series(a, hist, several),
+                             res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
                              events, smooth and model != "static", meta_extra)
     notes = [n for p in passes for n in p.notes]
-    if model == "random_walk":
-        for j, r in enumerate(info.rovers):
-            band = random_walk_passband_hz(info.cfg.random_walk_sigma, a.kP[:, 3 * j:3 * j + 3, 3 * j:3 * j + 3],
-                                           a.t, smooth)
-            if band is not None:
-                summary_rovers[r]["random_walk_passband_hz"] = dict(zip("enu", band))
-                notes.append(_passband_note(r, info.cfg.random_walk_sigma, band, smooth))
+    for r, band in bands.items():
+        if band is not None:
+            summary_rovers[r]["random_walk_passband_hz"] = dict(zip("enu", band))
+            notes.append(_passband_note(r, info.cfg.random_walk_sigma, band, smooth))
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names, "notes": notes,
                 "warnings": _blind_warnings(summary_rovers, model) + _misfit_warnings(out.get("mean_nis_per_dof"),
                                                                                       model)
                 + ([STATIC_SMOOTH_NOTE] if smooth and model == "static" else [])})
-    if len(passes) > 1:
+    if several:
         out["windows"] = len(passes)
     return out
 
@@ -1323,7 +1442,7 @@ def _raised_walks(init: dict) -> dict:
 INIT_WINDOWS_ATTACHMENT = "init_windows.json"
 
 
-def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kq, kP, kin_n, kin_pdop,
+def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kinematic: tuple,
                        res_cols, residual_m, nis, nis_dof, events, smoothed, meta_extra) -> dict:
     """The displacement states as a :class:`~cdgps_cli.core.records.StateSeries` (x = q, C = I)
     through the one STATES writer :func:`cdgps_cli.io.states.write_states`; the single-epoch
@@ -1356,12 +1475,8 @@ def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kq, k
     series = {STATE_TOPIC: Series(t, q, P, bool(smoothed))}
     if qf is not None:
         series[STATE_FILTERED_TOPIC] = Series(t, qf, Pf, False)
-    have = ~np.all(np.isnan(kq), axis=1)
-    kP = kP.copy()
-    kP[np.isnan(kq)] = np.nan                  # no single-epoch solution of a rover: no covariance either
-    nq = len(names)                            # (single-epoch solutions: positions only, no velocities)
-    series[KINEMATIC_TOPIC] = Series(t[have], kq[have][:, :nq], kP[have][:, :nq, :nq], False,
-                                     {"n_sat": kin_n[have], "pdop": kin_pdop[have]}, messages=False)
+    kt, kq, kP, kin_n, kin_pdop = kinematic      # (:func:`_kinematic_series`)
+    series[KINEMATIC_TOPIC] = Series(kt, kq, kP, False, {"n_sat": kin_n, "pdop": kin_pdop}, messages=False)
     ss = StateSeries("displacement", list(names), ["m"] * len(names), np.eye(len(names)), q.shape[1] - len(names),
                      series, list(res_cols), residual_m, nis, nis_dof, events, GPS_L1_WAVELENGTH_M)
     attachments = {GNSS_CONFIG_ATTACHMENT: (run.cfg.text.encode(), "application/toml"),
@@ -1377,7 +1492,7 @@ def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kq, k
     out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps", preview_rate_hz=0.0,
                                  nis_bounds=nis_bounds95)
     out.update({"start": gps_time_str(float(t[0])), "end": gps_time_str(float(t[-1])),
-                "kinematic_epochs": int(have.sum())})
+                "kinematic_epochs": int(kt.size)})
     return out
 
 
