@@ -1486,11 +1486,14 @@ def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kinem
                    "text": text} for one, text, src in inits]
         attachments[INIT_WINDOWS_ATTACHMENT] = (json.dumps(listed, sort_keys=True).encode(), "application/json")
         meta["init_windows"] = json.dumps([{k: v for k, v in e.items() if k != "text"} for e in listed], sort_keys=True)
-    # Foxglove channels at every epoch (GNSS epochs are 1 s or longer: the arrays dominate the size)
+    # Foxglove channels at every epoch of a record at 1 Hz or slower; a faster one (a 10 Hz day: 864,000 epochs, whose
+    # JSON messages took 390 MiB more to write) at the preview's rate, low-pass filtered before decimation
+    from cdgps_cli.analysis.preview import anti_alias_decimate  # noqa: PLC0415
+    from cdgps_cli.io.states_layout import DEFAULT_PREVIEW_RATE_HZ  # noqa: PLC0415
     from cdgps_cli.pipeline.estimate_outputs import nis_bounds95  # noqa: PLC0415
 
-    out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps", preview_rate_hz=0.0,
-                                 nis_bounds=nis_bounds95)
+    out = states_io.write_states(ss, out_path, meta, attachments, time_scale="gps", preview_rate_hz=DEFAULT_PREVIEW_RATE_HZ,
+                                 preview=anti_alias_decimate, nis_bounds=nis_bounds95)
     out.update({"start": gps_time_str(float(t[0])), "end": gps_time_str(float(t[-1])),
                 "kinematic_epochs": int(kt.size)})
     return out
