@@ -19,7 +19,6 @@ need nothing here: the readers turn calendar dates and (week, time of week) into
 
 from __future__ import annotations
 
-import glob
 from dataclasses import dataclass, field
 from pathlib import Path
 

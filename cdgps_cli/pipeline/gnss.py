@@ -32,7 +32,6 @@ attached as ``gnss_config.toml``.
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
@@ -427,11 +426,12 @@ def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sig
     """δx (displacement − static solution) by the engine: the forward filter
     (:func:`~cdgps_cli.estimation.model_filter.filter_numpy`, one update per epoch: the model is linear)
     with random-walk dynamics (A = I, Q = diag(σ²)Δt) from δx = 0 ± ``p0_sigma``, and the RTS
-    smoother (:func:`~cdgps_cli.estimation.smoother.rts_smooth_indexed`) when ``smooth``.
+    smoother (:func:`~cdgps_cli.estimation.smoother.rts_smooth_indexed`) when ``smooth`` — what
+    :func:`gnss_estimate` runs on one window (:func:`_dynamics_of`, :func:`_forward`).
 
     Returns smoothed (or filtered) x (N, 3), P (N, 3, 3), filtered x, P, and NIS (N,) (NaN: no DDs).
     """
-    return _filtered(model, RandomWalk(3, sigma_rw), t, np.eye(3) * p0_sigma**2, smooth)
+    return _filtered(*_dynamics_of(model, "random_walk", sigma_rw, None, p0_sigma), t, smooth)
 
 
 def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigma: float, p0_sigma: float,
@@ -441,14 +441,22 @@ def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigm
     m/s/√s, white acceleration), the DDs seeing δx only (the model stacked on the six states,
     :class:`~cdgps_cli.measurement.stacked.Stacked`), from δx = 0 ± ``p0_sigma`` and v = 0 ± ``p0_sigma`` per second.
     Returns the six states of each as :func:`_random_walk` its three (x (N, 6), P (N, 6, 6): [δx, v], m and m/s)."""
-    from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
-    from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
-    xs, ps, xf, pf, nis = _filtered(Stacked([("dd", model)], n_state=6), ConstantVelocity(3, accel_sigma), t,
-                                    np.eye(6) * p0_sigma**2, smooth)
+    xs, ps, xf, pf, nis = _filtered(*_dynamics_of(model, "constant_velocity", None, accel_sigma, p0_sigma), t, smooth)
     return np.asarray(xs), np.asarray(ps), np.asarray(xf), np.asarray(pf), nis
 
 
-def _filtered(model, dyn, t: np.ndarray, P0: np.ndarray, smooth: bool):
+def _dynamics_of(dd: SatelliteDDDisplacement, model: str, sigma_rw, accel_sigma, p0_sigma: float):
+    """(measurement model, dynamics, prior covariance at the first epoch) of a moving rover's states: the random
+    walk of the displacements (3 states, σ ``sigma_rw`` m/√s), or constant velocity [displacement, velocity] (6,
+    ``accel_sigma`` m/s/√s) with the DDs seeing the displacements alone; the prior 0 ± ``p0_sigma``."""
+    if model == "random_walk":
+        return dd, RandomWalk(3, sigma_rw), np.eye(3) * p0_sigma**2
+    from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
+    from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
+    return Stacked([("dd", dd)], n_state=6), ConstantVelocity(3, accel_sigma), np.eye(6) * p0_sigma**2
+
+
+def _filtered(model, dyn, P0: np.ndarray, t: np.ndarray, smooth: bool):
     """The engine's forward filter of ``model`` under ``dyn`` from x = 0 ± ``P0`` (one update per epoch: the model is
     linear) and, when ``smooth``, its RTS pass: (x, P) smoothed (or filtered), (x, P) filtered, NIS (N,)."""
     fr = _forward(model, dyn, t, np.zeros(P0.shape[0]), P0)
@@ -660,27 +668,91 @@ def gnss_estimate_windows(windows: list, out_path: str | Path, *, smooth: bool =
     say = progress or (lambda m: None)
     if not windows:
         raise CdgpsError("estimate: no INIT given")
+    windows = _windows_in_order(windows)
     passes, carried, frames = [], {}, {}
     several = len(windows) > 1           # (one window: its rows stay in memory, as always; several: on disk)
-    with (tempfile.TemporaryDirectory(dir=Path(out_path).resolve().parent, prefix=".cdgps-estimate-") if several
-          else contextlib.nullcontext()) as tmp:
-        spill = Path(tmp) if several else None
-        for k, win in enumerate(windows):
-            if len(windows) > 1:
-                say(f"window {k + 1} of {len(windows)}" + (f" ({win.source})" if win.source else "") + " …")
-            try:
-                passes.append(_forward_window(win, smooth, carried, frames, say, spill))
-            except CdgpsError as exc:          # (several INITs: the one whose window failed is named)
-                msg = str(exc)
-                if len(windows) > 1 and win.source and msg.startswith("INIT.json"):
-                    raise CdgpsError(f"{win.source}{msg[len('INIT.json'):]}") from None
-                raise
-        return _write_windows(passes, windows, out_path, smooth, extra_options, say)
+    spill = _Scratch(out_path) if several else None
+    for k, win in enumerate(windows):
+        if several:
+            say(f"window {k + 1} of {len(windows)}" + (f" ({win.source})" if win.source else "") + " …")
+        try:
+            passes.append(_forward_window(win, smooth, carried, frames, say, spill))
+        except CdgpsError as exc:          # (several INITs: the one whose window failed is named)
+            msg = str(exc)
+            if several and win.source and not msg.startswith(win.source):
+                msg = msg[len("INIT.json: "):] if msg.startswith("INIT.json: ") else msg
+                raise CdgpsError(f"{win.source}: {msg}") from None
+            raise
+    return _write_windows(passes, windows, out_path, smooth, extra_options, say)
+
+
+def _windows_in_order(windows: list) -> list:
+    """The windows in time order (by INIT's window); several must each have a window, none overlapping, and every
+    rover the same nominal position in all of them (their states are offsets from it: a rover placed anew in each
+    window, metres apart, would jump at each seam)."""
+    if len(windows) == 1:
+        return list(windows)
+    spans = []
+    for w in windows:
+        span = init_window(w.init)
+        if span is None:
+            raise CdgpsError(f"{w.source or 'an INIT'}: an INIT of the whole record among several: each must be made "
+                             f"on a window of the record ('cdgps init --start S --duration D')")
+        spans.append(span)
+    order = sorted(range(len(windows)), key=lambda k: spans[k][0])
+    out = [windows[k] for k in order]
+    for a, b in zip(order, order[1:]):
+        if spans[b][0] < spans[a][1]:
+            raise CdgpsError(f"{windows[a].source or 'an INIT'} and {windows[b].source or 'another'}: their windows "
+                             f"overlap ({gps_time_str(spans[a][0])} – {gps_time_str(spans[a][1])} and "
+                             f"{gps_time_str(spans[b][0])} – {gps_time_str(spans[b][1])}): each INIT must serve its own "
+                             f"window of the record")
+    first = out[0]
+    for w in out[1:]:
+        for r, rov in (first.init.get("rovers") or {}).items():
+            other = ((w.init.get("rovers") or {}).get(r) or {}).get("nominal_ecef_m")
+            mine = (rov or {}).get("nominal_ecef_m")
+            if other is None or mine is None or not np.allclose(other, mine, rtol=0, atol=1e-6):
+                raise CdgpsError(f"{w.source or 'an INIT'}: rover {r}'s nominal position differs from that of "
+                                 f"{first.source or 'the first INIT'} ({mine} and {other} m, ECEF): the windows' "
+                                 f"states would be offsets from different points; give the rover a position "
+                                 f"([gnss.antennas.\"{r}\"] position_ecef_m) or ingest the run again, which places it "
+                                 f"once for every window")
+    return out
+
+
+class _Scratch:
+    """Where several windows' rows and arrays wait for the passes after them: unlinked temporary files beside the
+    output (nothing is left on disk, however the command ends)."""
+
+    def __init__(self, out_path):
+        self.dir = Path(out_path).resolve().parent
+        self.out_path = out_path
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)     # (as the output's writer makes it)
+        except OSError as exc:
+            raise CdgpsError(f"{out_path}: cannot make its directory: {(exc.strerror or str(exc)).lower()}") from None
+
+    def save(self, **arrays):
+        """The arrays in a fresh unlinked file; returns it (``np.load`` after ``seek(0)``)."""
+        try:
+            fh = tempfile.TemporaryFile(prefix=".cdgps-estimate-", dir=self.dir)
+            np.savez(fh, **arrays)
+        except OSError as exc:
+            raise CdgpsError(f"{self.out_path}: cannot write a scratch file in {self.dir}: "
+                             f"{(exc.strerror or str(exc)).lower()}") from None
+        return fh
+
+
+def _load(fh):
+    """The arrays :meth:`_Scratch.save` wrote (an ``np.load`` of the file, to use in a ``with``)."""
+    fh.seek(0)
+    return np.load(fh)
 
 
 class _WindowPass(NamedTuple):
     """What one window leaves for the passes after it: its axis and arrays (:class:`_EstimateArrays`, states not yet
-    smoothed), per rover its forward track (None: static) and the inputs of its DD residuals, and what the
+    smoothed; with several windows a namespace of its axis and scratch file, :func:`_spill_window`), per rover its forward track (None: static) and the inputs of its DD residuals, and what the
     STATES metadata and summary say of it."""
 
     a: "_EstimateArrays"
@@ -693,7 +765,7 @@ class _WindowPass(NamedTuple):
     run_info: SimpleNamespace
 
 
-def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: dict, say, spill: Path | None) -> _WindowPass:
+def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: dict, say, spill) -> _WindowPass:
     """One window: each rover's baseline at INIT's integers, its single-epoch solutions, and its forward filter from
     the state ``carried`` out of the previous window (updated here); the states held in the first window's origin
     (``frames``, per rover)."""
@@ -729,7 +801,7 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
             carried[r] = track.last()
         tracks[r] = track
         ri = _residual_inputs(w, groups)
-        residual_inputs[r] = (ri if spill is None else _SpilledInputs(ri, spill / f"{len(list(spill.iterdir()))}.npz"), idx)
+        residual_inputs[r] = (ri if spill is None else _SpilledInputs(ri, spill), idx)
         a.kinematic(w["kinematic"], idx, sl, j)
         n_fix = n_fixed_with_glonass(res["ambiguities"])
         summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size), n_fixed_with_glonass=n_fix,
@@ -747,23 +819,20 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
 _ARRAY_FIELDS = ("q", "P", "qf", "Pf", "kq", "kP", "kin_n", "kin_pdop", "nis_sum", "dof_tot")
 
 
-def _spill_window(p: "_WindowPass", spill: Path) -> "_WindowPass":
+def _spill_window(p: "_WindowPass", spill: "_Scratch") -> "_WindowPass":
     """A window's per-epoch arrays and filter tracks moved to a scratch file (several windows: one window's arrays
     in memory at a time); what stays is its axis and the tracks' small parts."""
-    path = spill / f"window-{len(list(spill.glob('window-*')))}.npz"
     arrays = {f: getattr(p.a, f) for f in _ARRAY_FIELDS if getattr(p.a, f) is not None}
     for r, tr in p.tracks.items():
         if tr is not None:
             arrays[f"x:{r}"], arrays[f"P:{r}"] = tr.x, tr.P
-    with open(path, "wb") as f:
-        np.savez(f, **arrays)
-    kept = SimpleNamespace(t=p.a.t, n=p.a.n, nq=p.a.nq, path=path, n_rovers=p.a.kin_n.shape[1],
+    kept = SimpleNamespace(t=p.a.t, n=p.a.n, nq=p.a.nq, file=spill.save(**arrays), n_rovers=p.a.kin_n.shape[1],
                            filtered=p.a.qf is not None, nx=p.a.q.shape[1])
     tracks = {r: None if tr is None else tr._replace(x=None, P=None) for r, tr in p.tracks.items()}
     return p._replace(a=kept, tracks=tracks)
 
 
-def _joined_arrays(passes: list, hist) -> "_EstimateArrays":
+def _joined_arrays(passes: list, hist):
     """The windows' arrays on one axis (their axes one after the other): the first window's object when alone, else
     arrays on disk (``hist``: :class:`cdgps_cli.io.scratch.DiskHistory`) filled a window at a time."""
     if len(passes) == 1:
@@ -779,7 +848,7 @@ def _joined_arrays(passes: list, hist) -> "_EstimateArrays":
         setattr(a, f, hist.empty(shape, np.int64 if f in ("kin_n", "dof_tot") else np.float64) if keep else None)
     start = 0
     for p in passes:
-        with np.load(p.a.path) as z:
+        with _load(p.a.file) as z:
             for f in _ARRAY_FIELDS:
                 if getattr(a, f) is not None:
                     getattr(a, f)[start:start + p.a.n] = z[f]
@@ -799,7 +868,7 @@ def _track_arrays(passes: list, rover: str, hist) -> tuple:
     xf, pf = hist.empty((n, nx)), hist.empty((n, nx, nx))
     start = 0
     for p, tr in zip(passes, tracks):
-        with np.load(p.a.path) as z:
+        with _load(p.a.file) as z:
             x = z[f"x:{rover}"]
             xf[start:start + tr.t.size] = x if tr.shift is None else x + tr.shift
             pf[start:start + tr.t.size] = z[f"P:{rover}"]
@@ -833,9 +902,10 @@ def _rows_in_chunks(n: int):
     return ((i, min(i + STATES_CHUNK_EPOCHS, n)) for i in range(0, n, STATES_CHUNK_EPOCHS))
 
 
-def _final_states(a, passes: list, rover: str, smooth: bool, hist) -> None:
+def _final_states(a, passes: list, rover: str, smooth: bool, hist):
     """A moving rover's states on the joined axis ``a``: its windows' forward tracks, smoothed over all of them when
-    ``smooth`` (in the first window's origin), with their filtered states beside."""
+    ``smooth`` (in the first window's origin), with their filtered states beside; returns the states x (N, nx) about
+    the first window's origin (in memory, or on disk with several windows)."""
     tracks = [p.tracks[rover] for p in passes]
     first, several = tracks[0], len(tracks) > 1
     xf, pf = _track_arrays(passes, rover, hist)
@@ -911,8 +981,11 @@ def _joined_residuals(passes: list, n: int, states: dict, hist) -> tuple:
 def _kinematic_series(a, hist, several: bool) -> tuple:
     """The single-epoch solutions' series: (time, positions, covariances, satellite counts, PDOP) at the epochs with
     a solution of some rover; a rover without one there has no covariance either (on disk with several windows)."""
-    have = ~np.all(np.isnan(a.kq), axis=1)
     nq = a.nq                                   # (single-epoch solutions: positions only, no velocities)
+    have = np.zeros(a.n, dtype=bool)
+    for i, j in _rows_in_chunks(a.n) if several else [(0, a.n)]:
+        have[i:j] = ~np.all(np.isnan(a.kq[i:j]), axis=1)
+        hist.release(a.kq, i, j)
     if not several:
         kP = a.kP.copy()
         kP[np.isnan(a.kq)] = np.nan
@@ -1006,9 +1079,11 @@ def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_op
         if band is not None:
             summary_rovers[r]["random_walk_passband_hz"] = dict(zip("enu", band))
             notes.append(_passband_note(r, info.cfg.random_walk_sigma, band, smooth))
+    blind = (_blind_warnings(summary_rovers, model) if not several else
+             [f"{w.source or f'window {k + 1}'}: {text}" for k, (p, w) in enumerate(zip(passes, windows))
+              for text in _blind_warnings(p.summary_rovers, model)])
     out.update({"displacement_model": model, "rovers": summary_rovers, "coordinates": names, "notes": notes,
-                "warnings": _blind_warnings(summary_rovers, model) + _misfit_warnings(out.get("mean_nis_per_dof"),
-                                                                                      model)
+                "warnings": blind + _misfit_warnings(out.get("mean_nis_per_dof"), model)
                 + ([STATIC_SMOOTH_NOTE] if smooth and model == "static" else [])})
     if several:
         out["windows"] = len(passes)
@@ -1187,10 +1262,10 @@ def _check_init_of_run(init: dict, run: GnssRun) -> None:
 
 
 class _EstimateArrays:
-    """:func:`gnss_estimate`'s per-epoch arrays on the common time axis (``t``, n epochs, nq = 3 per rover): the
-    states q (n, nq) and covariances P (n, nq, nq), the filtered ones qf, Pf (random walk, smoothed), the
-    single-epoch (kinematic) ones kq, kP with their satellite counts and PDOP per rover, the NIS summed over
-    the rovers with its degrees of freedom, and the DD residual columns (rover, satellite)."""
+    """One window's per-epoch arrays on its common time axis (``t``, n epochs, nq = 3 per rover): the states q
+    (n, nq) and covariances P (n, nq, nq), the filtered ones qf, Pf (random walk, smoothed), the single-epoch
+    (kinematic) ones kq, kP with their satellite counts and PDOP per rover, and the NIS summed over the rovers
+    with its degrees of freedom (the DD residual columns: :func:`_joined_residuals`)."""
 
     def __init__(self, t: np.ndarray, nq: int, n_rovers: int, filtered: bool, rates: bool = False):
         self.t = t
@@ -1217,15 +1292,8 @@ class _EstimateArrays:
 
 
 def _displacement_dynamics(dd: SatelliteDDDisplacement, model: str, cfg):
-    """(measurement model, dynamics, prior covariance at the first epoch) of a moving rover's states: the random
-    walk of the displacements (3 states), or constant velocity [displacement, velocity] (6) with the DDs seeing the
-    displacements alone (:func:`_random_walk`, :func:`_constant_velocity`)."""
-    p0 = cfg.initial_sigma_m
-    if model == "random_walk":
-        return dd, RandomWalk(3, cfg.random_walk_sigma), np.eye(3) * p0**2
-    from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
-    from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
-    return Stacked([("dd", dd)], n_state=6), ConstantVelocity(3, cfg.accel_sigma_m_per_s_per_sqrt_s), np.eye(6) * p0**2
+    """:func:`_dynamics_of` with the run config's process noise and prior."""
+    return _dynamics_of(dd, model, cfg.random_walk_sigma, cfg.accel_sigma_m_per_s_per_sqrt_s, cfg.initial_sigma_m)
 
 
 class _RoverTrack(NamedTuple):
@@ -1313,16 +1381,15 @@ class _SpilledInputs:
     """:func:`_residual_inputs` kept in a scratch file until the residual pass (several windows: the rows of one
     window at a time in memory); ``sat_names`` stays at hand, :meth:`load` gives the inputs back."""
 
-    def __init__(self, ri: SimpleNamespace, path: Path):
-        self.path, self.sat_names, self.n_epochs, self.n_groups = path, ri.sat_names, ri.n_epochs, len(ri.groups)
+    def __init__(self, ri: SimpleNamespace, scratch: "_Scratch"):
+        self.sat_names, self.n_epochs, self.n_groups = ri.sat_names, ri.n_epochs, len(ri.groups)
         arrays = {"epoch": ri.epoch, "sat": ri.sat, "r_ph": ri.r_ph, "g": ri.g}
         for k, (u, ref) in enumerate(ri.groups):
             arrays[f"usable_{k}"], arrays[f"ref_{k}"] = u, ref
-        with open(path, "wb") as f:
-            np.savez(f, **arrays)
+        self.file = scratch.save(**arrays)
 
     def load(self) -> SimpleNamespace:
-        with np.load(self.path) as z:
+        with _load(self.file) as z:
             groups = [(z[f"usable_{k}"], z[f"ref_{k}"]) for k in range(self.n_groups)]
             return SimpleNamespace(epoch=z["epoch"], n_epochs=self.n_epochs, sat=z["sat"], sat_names=self.sat_names,
                                    r_ph=z["r_ph"], g=z["g"], groups=groups)
@@ -1429,6 +1496,15 @@ def _events(rover: str, master: str, res: dict, w: dict) -> list:
 # STATES.mcap
 
 
+def _raised_walks_of(inits: list) -> dict:
+    """:func:`_raised_walks` of every INIT (each window's rovers whose float walk was raised; the last window's σ where
+    several raised one rover's)."""
+    used = {}
+    for one, _, _ in inits:
+        used.update(_raised_walks(one).get("init_random_walk_sigma_used_m_per_sqrt_s", {}))
+    return {"init_random_walk_sigma_used_m_per_sqrt_s": used} if used else {}
+
+
 def _raised_walks(init: dict) -> dict:
     """``{"init_random_walk_sigma_used_m_per_sqrt_s": {rover: σ (3,)}}`` for the rovers whose random-walk float
     ``init`` solved at a σ raised above the config's (INIT's float ``random_walk_sigma_used_m_per_sqrt_s``), else {}:
@@ -1466,7 +1542,7 @@ def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kinem
                                    **({"accel_sigma_m_per_s_per_sqrt_s": run.cfg.accel_sigma_m_per_s_per_sqrt_s,
                                        "init_random_walk_sigma_m_per_sqrt_s": list(run.cfg.random_walk_sigma)}
                                       if model == "constant_velocity" else {}),
-                                   **{k: v for one, _, _ in inits for k, v in _raised_walks(one).items()},
+                                   **_raised_walks_of(inits),
                                    **meta_extra.get("options", {})},
                                   sort_keys=True),
             "final_biases": json.dumps(biases), "smoothed": str(bool(smoothed)).lower(), "displacement_model": model,

@@ -134,3 +134,69 @@ def test_a_fast_records_json_channels_are_a_filtered_1_hz_preview(tmp_path):
     meta = c.metadata[ESTIMATE_METADATA]
     assert meta["json_channels_every_epochs"] == "10" and "low-pass" in meta["json_channels_filter"]
     assert len(c.topics[STATE_TOPIC].times()) == 30 and States(tmp_path / "s.mcap").q.shape[0] == 300
+
+
+@pytest.fixture(scope="module")
+def two_rovers(tmp_path_factory):
+    """The GNSS tower's two rovers (random walk, 1 Hz, 121 epochs) with the whole record's INIT and two windows' (the
+    first minute, and the rest)."""
+    d = tmp_path_factory.mktemp("win-tower")
+    _cli_ok("-q", "simulate-gnss-structure", REPO_ROOT / "configs" / "gnss-tower.toml", "--duration", "120", "-o", d / "sim")
+    _cli_ok("-q", "ingest", "--config", d / "sim" / "config.toml", "-o", d / "run.mcap")
+    _cli_ok("-q", "init", d / "run.mcap", "-o", d / "whole.json")
+    _cli_ok("-q", "init", d / "run.mcap", "--start", "0", "--duration", "60", "-o", d / "w0.json")
+    _cli_ok("-q", "init", d / "run.mcap", "--start", "60", "-o", d / "w1.json")          # (to the record's end)
+    return d
+
+
+def test_two_rovers_over_two_windows(two_rovers):
+    d = two_rovers
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", d / "whole.json", "--smooth", "-o", d / "whole.mcap")
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", d / "w0.json", "--init", d / "w1.json", "--smooth",
+            "-o", d / "two.mcap")
+    a, b = States(d / "whole.mcap"), States(d / "two.mcap")
+    assert a.coord_names == b.coord_names == ["r1_e", "r1_n", "r1_u", "r2_e", "r2_n", "r2_u"]
+    assert b.time_s.size == 121 and np.array_equal(a.time_s, b.time_s)
+    assert np.max(np.abs(a.q - b.q)) < 1e-6 and np.max(np.abs(b.sigma_q / a.sigma_q - 1.0)) < 1e-6
+
+
+def test_an_output_directory_is_made_and_a_failing_window_is_named(two_rovers, tmp_path):
+    d = two_rovers
+    out = tmp_path / "not" / "yet" / "s.mcap"
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", str(d / "w[01].json"), "-o", out)
+    assert out.exists() and [p.name for p in out.parent.iterdir()] == ["s.mcap"]   # (scratch files: unlinked)
+    late = json.loads((d / "w1.json").read_text())
+    late["window"] = dict(late["window"], start_gps_s=late["window"]["start_gps_s"] + 1e5,
+                          end_gps_s=late["window"]["end_gps_s"] + 1e5)
+    (tmp_path / "late.json").write_text(json.dumps(late))
+    r = run_cli("estimate", d / "run.mcap", "--init", d / "w0.json", "--init", tmp_path / "late.json",
+                "--allow-other-run", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and f"{tmp_path / 'late.json'}:" in r.output and "Traceback" not in r.output, r.output
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_windows_whose_rover_is_placed_apart_are_refused(two_rovers, tmp_path):
+    """Each window's states are offsets from the rover's nominal position: INITs that placed it differently (a rover
+    without a position of its own, placed by each window's pseudoranges) would jump at the seam."""
+    d = two_rovers
+    moved = json.loads((d / "w1.json").read_text())
+    moved["rovers"]["r2"]["nominal_ecef_m"] = [v + 2.0 for v in moved["rovers"]["r2"]["nominal_ecef_m"]]
+    (tmp_path / "moved.json").write_text(json.dumps(moved))
+    r = run_cli("estimate", d / "run.mcap", "--init", d / "w0.json", "--init", tmp_path / "moved.json",
+                "--allow-other-run", "-o", tmp_path / "x.mcap")
+    assert r.exit_code == 2 and "moved.json" in r.output and "rover r2's nominal position differs" in r.output
+
+
+def test_a_window_without_fixed_integers_is_warned_about_by_name(record, tmp_path):
+    """A window whose INIT fixed nothing (one epoch) among fixed ones: its warning names its INIT (the totals over
+    the windows hid it)."""
+    d, _ = record
+    for name, start, dur in (("a", "0", "300"), ("b", "300", "1"), ("c", "301", "299")):
+        _cli_ok("-q", "init", d / "run.mcap", "--start", start, "--duration", dur, "-o", tmp_path / f"{name}.json")
+    one = json.loads((tmp_path / "b.json").read_text())["rovers"]["rover"]
+    if one["n_fixed"]:
+        pytest.skip(f"the one-epoch window fixed {one['n_fixed']} integers here")
+    r = _cli_ok("estimate", d / "run.mcap", "--init", str(tmp_path / "[abc].json"), "-o", tmp_path / "s.mcap", "--json")
+    warnings = json.loads(r.stdout)["warnings"]
+    assert any(w.startswith(f"{tmp_path / 'b.json'}: rover: none of its") for w in warnings), warnings
+    assert not any(str(tmp_path / "a.json") in w or str(tmp_path / "c.json") in w for w in warnings)

@@ -1,8 +1,8 @@
 /* Compiled satellite orbits of cdgps_cli.model.gps.orbits: Kepler's equation, the rest of the IS-GPS-200
- * user algorithm and the light-time step, on rows grouped in blocks (one block per satellite of a chunk).
+ * user algorithm and the light-time step, on rows grouped in blocks (orbits.py: every row a block of its own).
  *
- * Every value is the one the numpy functions of orbits.py give (_eccentric_anomaly_blocks, _kepler_at_anomaly,
- * _light_time_blocks; tested equal bit for bit): the same operations in the same order, no fused multiply-add
+ * Every value is the one the numpy functions of orbits.py give (_eccentric_anomaly, _kepler_at_anomaly,
+ * _light_time_rows; tested equal bit for bit): the same operations in the same order, no fused multiply-add
  * (built with -ffp-contract=off), sin/cos from libm as numpy's float64 sin/cos (sincos where both are needed:
  * glibc computes them by the same code).  The arctangent of the true anomaly is NOT computed here: numpy's
  * float64 arctan2 is a SIMD routine that differs from libm's atan2 by an ulp now and then, so the caller applies
@@ -611,7 +611,7 @@ static PyMethodDef methods[] = {
     {"anomaly", py_anomaly, METH_VARARGS, "Kepler's equation on the live blocks (see the file's header)."},
     {"kepler", py_kepler, METH_VARARGS, "Position and clock of the rows evaluated by anomaly (see the header)."},
     {"light", py_light, METH_VARARGS, "One light-time step of the live blocks; returns the blocks still going."},
-    {"newton", py_newton, METH_VARARGS, "Kepler's equation on all rows as one block (see the header)."},
+    {"newton", py_newton, METH_VARARGS, "Kepler's equation on every row, each on its own (see the header)."},
     {"anomaly_trig", py_anomaly_trig, METH_VARARGS, "sin E, cos E and the true anomaly's (y, x)."},
     {"orbit", py_orbit, METH_VARARGS, "Position and clock from sin E, cos E and the true anomaly."},
     {"enu", py_enu, METH_VARARGS, "East/north/up of satellites from one receiver (einsum's sums)."},

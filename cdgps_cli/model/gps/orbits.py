@@ -200,8 +200,9 @@ def _eccentric_anomaly(m: np.ndarray, e: np.ndarray) -> np.ndarray:
     """Solve Kepler's equation E − e·sin E = M by Newton iteration, each row on its own: a row stops after
     the first step below 1e-15 rad (at most 30), so its E depends on its own M and e alone, never on the other
     rows evaluated with it (a window of a record gives the whole record's values bit for bit, issue 29)."""
-    ecc = np.broadcast_to(np.asarray(e, dtype=np.float64), np.shape(m)).ravel()
-    mm = np.asarray(m, dtype=np.float64).ravel()
+    m_b, e_b = np.broadcast_arrays(np.asarray(m, dtype=np.float64), np.asarray(e, dtype=np.float64))
+    shape = m_b.shape
+    ecc, mm = e_b.ravel(), m_b.ravel()
     big_e = mm.copy()
     go = np.arange(mm.size)
     for _ in range(30):
@@ -211,7 +212,7 @@ def _eccentric_anomaly(m: np.ndarray, e: np.ndarray) -> np.ndarray:
         go = go[~(np.abs(d) < 1e-15)]
         if not go.size:
             break
-    return big_e.reshape(np.shape(m))
+    return big_e.reshape(shape)
 
 
 def sat_position_ecef(eph, t_gps_s, *, apply_tgd: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -502,8 +503,8 @@ def ephemeris_rows(nav: pd.DataFrame, sats, t_gps_s) -> EphemerisRows:
     """:func:`select_ephemerides`' choice for each (satellite, time) row, as row positions and orbit constants.
 
     ``sat_position_rows(ephemeris_rows(nav, sats, t), tt)`` is ``sat_position_ecef(select_ephemerides(nav, sats, t), tt)``
-    value for value (the same ephemerides, the same operations, Kepler's equation iterated over all the Kepler rows
-    until all have converged), without the DataFrame of N ephemerides.  CdgpsError as :func:`select_ephemerides`.
+    value for value (the same ephemerides, the same operations, each row's Kepler equation iterated until its own step
+    is below 1e-15 rad), without the DataFrame of N ephemerides.  CdgpsError as :func:`select_ephemerides`.
     """
     sats = np.asarray(sats, dtype=object).ravel()
     t = np.asarray(t_gps_s, dtype=np.float64).ravel()
@@ -796,9 +797,9 @@ def sat_positions_at_reception(nav: pd.DataFrame, sats, t_rx_gps_s, rx_ecef_m, *
                                ephemeris: ReceptionEphemeris | None = None) -> ReceptionGeometry:
     """:func:`sat_position_at_reception` for rows of many satellites at once.
 
-    Every satellite's rows give exactly what one :func:`sat_position_at_reception` call on them gives
-    (the light-time and Kepler iterations stop satellite by satellite, by the same tests), but the
-    orbit is evaluated over all rows together and the ephemerides are selected once.
+    Every row gives exactly what one :func:`sat_position_at_reception` call on it gives (the light-time and
+    Kepler iterations stop row by row, by the same tests, so a row's value does not depend on the rows evaluated
+    with it), but the orbit is evaluated over all rows together and the ephemerides are selected once.
 
     Parameters
     ----------
@@ -927,8 +928,8 @@ def _core_kepler(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, starts: np.nda
 
 def _kepler_compiled(kc: np.ndarray, rows: np.ndarray, t: np.ndarray, apply_tgd: bool,
                      out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`sat_position_rows`' Kepler rows in C: one block (Kepler's equation iterated until all rows have
-    converged), then the rest chunk by chunk (temporaries of MB), position (K, 3) m and clock (K,) s (written
+    """:func:`sat_position_rows`' Kepler rows in C: Kepler's equation (each row iterated until its own step is
+    below 1e-15 rad), then the rest chunk by chunk (temporaries of MB), position (K, 3) m and clock (K,) s (written
     into ``out``, C-contiguous float64 arrays of those shapes, when given)."""
     n = t.size
     rows = np.ascontiguousarray(rows, dtype=np.int64)
