@@ -1043,6 +1043,18 @@ def _joined_summary(passes: list, windows: list) -> dict:
     return out
 
 
+def _windows_noise_notes(passes: list) -> list:
+    """``phase_noise = "auto"`` over several windows, said once per rover: the range of the windows' factors (each
+    window scales its own phase variances)."""
+    out = []
+    for r in passes[0].run_info.rovers:
+        f = [p.summary_rovers[r]["phase_noise"]["factor"] for p in passes if "phase_noise" in p.summary_rovers[r]]
+        if f:
+            out.append(f"{r}: phase_noise auto, each window its own factor: the phase variances scaled by "
+                       f"{min(f):.3g} … {max(f):.3g} over its {len(f)} windows (rovers.{r}.windows[].phase_noise)")
+    return out
+
+
 def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_options: dict | None, say) -> dict:
     """The windows' states on one axis, smoothed over all of them, their residuals and events → STATES.mcap (with
     several windows the joined arrays are on disk, beside the output, and read back a block at a time)."""
@@ -1074,7 +1086,7 @@ def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_op
     out = _write_gnss_states(info, inits, out_path, names, a.t, a.q, a.P, a.qf, a.Pf, _kinematic_series(a, hist, several),
                              res_cols, residual_m, np.where(a.dof_tot > 0, a.nis_sum, np.nan), a.dof_tot,
                              events, smooth and model != "static", meta_extra)
-    notes = [n for p in passes for n in p.notes]
+    notes = passes[0].notes if not several else _windows_noise_notes(passes)
     for r, band in bands.items():
         if band is not None:
             summary_rovers[r]["random_walk_passband_hz"] = dict(zip("enu", band))

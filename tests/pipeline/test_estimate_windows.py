@@ -200,3 +200,19 @@ def test_a_window_without_fixed_integers_is_warned_about_by_name(record, tmp_pat
     warnings = json.loads(r.stdout)["warnings"]
     assert any(w.startswith(f"{tmp_path / 'b.json'}: rover: none of its") for w in warnings), warnings
     assert not any(str(tmp_path / "a.json") in w or str(tmp_path / "c.json") in w for w in warnings)
+
+
+def test_phase_noise_auto_is_said_once_per_rover_with_the_windows_range(tmp_path):
+    _cli_ok("-q", "simulate-gnss", "--duration", "300", "--rate-hz", "1", "--random-walk", "0.002", "--seed", "4",
+            "-o", tmp_path / "sim")
+    cfg = tmp_path / "sim" / "config.toml"
+    cfg.write_text(cfg.read_text().replace('model = "static"', 'model = "random_walk"')
+                   .replace('# phase_noise = "auto"', 'phase_noise = "auto"'))
+    _cli_ok("-q", "ingest", "--config", cfg, "-o", tmp_path / "run.mcap")
+    for k in (0, 1, 2):
+        _cli_ok("-q", "init", tmp_path / "run.mcap", "--start", 100 * k, "--duration", "100", "-o", tmp_path / f"i{k}.json")
+    r = _cli_ok("estimate", tmp_path / "run.mcap", "--init", str(tmp_path / "i?.json"), "-o", tmp_path / "s.mcap", "--json")
+    notes = [n for n in json.loads(r.stdout)["notes"] if "phase_noise" in n]
+    assert len(notes) == 1 and "over its 3 windows" in notes[0], notes
+    rov = json.loads(States(tmp_path / "s.mcap").metadata["rovers"])["rover"]
+    assert len({w["phase_noise"]["factor"] for w in rov["windows"]}) == 3          # each window its own factor
