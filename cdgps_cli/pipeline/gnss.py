@@ -46,7 +46,7 @@ import numpy as np
 import pandas as pd
 
 from cdgps_cli import __version__
-from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS, NIS_MISFIT_PER_DOF
+from cdgps_cli.config.options import EPOCH_PAIRING_DEFAULTS, NIS_MISFIT_PER_DOF, STATES_CHUNK_EPOCHS
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_from_init, json_safe,
                                            known_phase_blocks, solve_static_baseline)
@@ -898,7 +898,6 @@ def _joined_transitions(tracks: list) -> tuple:
 
 def _rows_in_chunks(n: int):
     """Row ranges of :data:`~cdgps_cli.config.options.STATES_CHUNK_EPOCHS` epochs covering ``n``."""
-    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
     return ((i, min(i + STATES_CHUNK_EPOCHS, n)) for i in range(0, n, STATES_CHUNK_EPOCHS))
 
 
@@ -916,7 +915,7 @@ def _final_states(a, passes: list, rover: str, smooth: bool, hist):
                 xs[i:j], ps[i:j] = xf[i:j], pf[i:j]
                 for arr in (xs, ps, xf, pf):
                     hist.release(arr, i, j)
-            rts_smooth_indexed(xs, ps, *_joined_transitions(tracks), chunk=_chunk_epochs(),
+            rts_smooth_indexed(xs, ps, *_joined_transitions(tracks), chunk=STATES_CHUNK_EPOCHS,
                                on_done=lambda i, j: [hist.release(arr, i, j) for arr in (xs, ps)])
         else:
             xs, ps = rts_smooth_indexed(np.array(xf), np.array(pf), *first.transitions)
@@ -935,18 +934,12 @@ def _final_states(a, passes: list, rover: str, smooth: bool, hist):
     return xs
 
 
-def _chunk_epochs() -> int:
-    from cdgps_cli.config.options import STATES_CHUNK_EPOCHS  # noqa: PLC0415
-    return STATES_CHUNK_EPOCHS
-
-
-def _window_dx(xs, passes: list, k: int, rover: str) -> np.ndarray:
-    """Window k's displacement of ``rover`` from its own static solution at the rover's epochs, from the states
-    ``xs`` (about the first window's origin) on the joined axis."""
-    start = sum(p.a.n for p in passes[:k])
-    tr = passes[k].tracks[rover]
-    _, idx = passes[k].residual_inputs[rover]
-    x = np.asarray(xs[start:start + passes[k].a.n, :3])[idx]
+def _window_dx(xs, p: "_WindowPass", start: int, rover: str) -> np.ndarray:
+    """A window's (``p``, its first epoch ``start`` on the joined axis) displacement of ``rover`` from its own static
+    solution at the rover's epochs, from the states ``xs`` (about the first window's origin)."""
+    tr = p.tracks[rover]
+    _, idx = p.residual_inputs[rover]
+    x = np.asarray(xs[start:start + p.a.n, :3])[idx]
     return x if tr.shift is None else x - tr.shift[:3]
 
 
@@ -963,12 +956,12 @@ def _joined_residuals(passes: list, n: int, states: dict, hist) -> tuple:
                     cols.append((r, s_name))
     vals = np.full((n, len(cols)), np.nan) if len(passes) == 1 else hist.empty((n, len(cols)))
     start = 0
-    for k, p in enumerate(passes):
+    for p in passes:
         block = np.full((p.a.n, len(cols)), np.nan)
         for r in p.run_info.rovers:
             ri, idx = p.residual_inputs[r]
             ri = ri.load() if isinstance(ri, _SpilledInputs) else ri
-            dx = _window_dx(states[r], passes, k, r) if r in states else np.zeros((ri.n_epochs, 3))
+            dx = _window_dx(states[r], p, start, r) if r in states else np.zeros((ri.n_epochs, 3))
             tab = _residual_table(ri, dx)
             for s_i, s_name in enumerate(ri.sat_names):
                 block[idx, index[(r, s_name)]] = tab[:, s_i]
