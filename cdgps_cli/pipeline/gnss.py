@@ -712,7 +712,11 @@ def _windows_in_order(windows: list) -> list:
         for r, rov in (first.init.get("rovers") or {}).items():
             other = ((w.init.get("rovers") or {}).get(r) or {}).get("nominal_ecef_m")
             mine = (rov or {}).get("nominal_ecef_m")
-            if other is None or mine is None or not np.allclose(other, mine, rtol=0, atol=1e-6):
+            for src, v in ((first.source, mine), (w.source, other)):
+                if not (isinstance(v, list) and len(v) == 3 and all(isinstance(c, (int, float)) for c in v)):
+                    raise CdgpsError(f"{src or 'an INIT'}: rovers.{r}.nominal_ecef_m: expected [x, y, z] in m (ECEF), "
+                                     f"got {v!r}")
+            if not np.allclose(other, mine, rtol=0, atol=1e-6):
                 raise CdgpsError(f"{w.source or 'an INIT'}: rover {r}'s nominal position differs from that of "
                                  f"{first.source or 'the first INIT'} ({mine} and {other} m, ECEF): the windows' "
                                  f"states would be offsets from different points; give the rover a position "
