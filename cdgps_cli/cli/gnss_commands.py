@@ -290,6 +290,11 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
               help="Undifferenced white phase noise, m [default: the elevation model sigma^2 = a^2 + b^2/sin^2(el), "
                    "a = b = 3 mm per receiver, the estimator's default weighting].")
 @click.option("--code-noise-m", type=float, default=0.5, show_default=True, help="Undifferenced pseudorange noise, m.")
+@click.option("--multipath-m", "multipath_m", type=float, default=0.0, show_default=True,
+              help="Rover phase multipath: each satellite's L1 phase carries a first-order Gauss-Markov error of this "
+                   "sigma, m (0: none).")
+@click.option("--multipath-tau-s", "multipath_tau_s", type=float, default=30.0, show_default=True,
+              help="Its correlation time, s.")
 @click.option("--clock-offset-ms", "clock_offset", default="0,0", show_default=True, metavar="M,R",
               help="Master and rover receiver-clock offset at the start, ms.")
 @click.option("--clock-drift-ms", "clock_drift", default="-4,5", show_default=True, metavar="M,R",
@@ -302,8 +307,8 @@ def simulate_gnss_structure_cmd(ctx, config, duration_s, seed, x_axis_azimuth_de
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover, master_xyz, rover_xyz, displacement,
-                      random_walk, accel_sigma, n_slips, phase_noise_m, code_noise_m, clock_offset, clock_drift,
-                      raw_tags, master_rate_hz, out_dir, as_json):
+                      random_walk, accel_sigma, n_slips, phase_noise_m, code_noise_m, multipath_m, multipath_tau_s,
+                      clock_offset, clock_drift, raw_tags, master_rate_hz, out_dir, as_json):
     """Simulate a master + rover GPS L1 pair → RINEX 3 obs/nav files, truth.csv/json, config.toml.
 
     The rover antenna is displaced from its nominal (header) position by --displacement (plus a
@@ -320,8 +325,8 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
         n_slips=n_slips, phase_sigma_m=phase_noise_m, code_sigma_m=code_noise_m,
         clock_offset_ms=parse_vector(clock_offset, "--clock-offset-ms", 2),
         clock_drift_ms=parse_vector(clock_drift, "--clock-drift-ms", 2), raw_tags=raw_tags,
-        master_rate_hz=master_rate_hz, accel_sigma=accel_sigma,
-        progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
+        master_rate_hz=master_rate_hz, accel_sigma=accel_sigma, multipath_sigma_m=multipath_m,
+        multipath_tau_s=multipath_tau_s, progress=None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True)))
     _say(ctx, f"wrote {', '.join(s['files'])} to {out_dir}/: {s['epochs']} epochs, {s['satellites']} satellites, "
               f"{s['slips']} slips, {s['displacement_model']} rover")
     if as_json:

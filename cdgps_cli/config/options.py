@@ -118,6 +118,9 @@ GNSS_DEFAULTS = {"mask_deg": 15.0, "ratio": RATIO_THRESHOLD, "partial": True, "w
                  # estimate's per-epoch states: the phase variances as modelled ("model"), or scaled by the unit
                  # variance of the single-epoch solutions' DD phase residuals ("auto")
                  "phase_noise": "model",
+                 # estimate's per-epoch states: white phase errors ("off"), or a Gauss–Markov multipath state per
+                 # satellite and signal, fitted ("auto") or given ("model"; its time constant by default 30 s)
+                 "multipath": "off", "multipath_time_constant_s": 30.0,
                  "iono_threshold_km": IONO_THRESHOLD_KM,
                  # an integer set (or partial subset) is fixed only if its bootstrapped success rate reaches this,
                  # besides the ratio test (partial ambiguity resolution with a success-rate criterion)

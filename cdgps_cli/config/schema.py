@@ -468,6 +468,15 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
                             "\"auto\": scaled by the unit variance of the single-epoch solutions' DD phase residuals "
                             "(honest σ where the model is far from the receivers' noise)",
                             default=GNSS_DEFAULTS["phase_noise"]),
+        "multipath": _key({"type": "string", "enum": ["off", "auto", "model"]},
+                          "estimate's per-epoch states: phase errors white (\"off\"), or a first-order Gauss-Markov "
+                          "multipath state per satellite and signal, its sigma and time constant fitted to the "
+                          "single-epoch solutions' DD phase residuals (\"auto\") or given (\"model\": "
+                          "multipath_sigma_m, multipath_time_constant_s)", default=GNSS_DEFAULTS["multipath"]),
+        "multipath_sigma_m": _key(_POS, "multipath = \"model\": the stationary sigma of each satellite's single-"
+                                        "difference phase multipath, m", sign="positive"),
+        "multipath_time_constant_s": _key(_POS, "multipath = \"model\": its correlation time, s (default 30)",
+                                          sign="positive"),
     },
 }
 

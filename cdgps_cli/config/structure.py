@@ -841,6 +841,13 @@ class GnssConfig:
     phase_noise: str = GNSS_DEFAULTS["phase_noise"]
     """``estimate``'s per-epoch phase variances: ``"model"`` (sigma_a_m, sigma_b_m) or ``"auto"`` (scaled by the
     single-epoch solutions' residual unit variance, :func:`cdgps_cli.pipeline.gnss.phase_variance_factor`)."""
+    multipath: str = GNSS_DEFAULTS["multipath"]
+    """``estimate``'s per-epoch states: ``"off"`` (white phase errors), ``"auto"`` or ``"model"``: a Gauss–Markov
+    multipath state per satellite and signal (:mod:`cdgps_cli.pipeline.gnss_multipath`)."""
+    multipath_sigma_m: float | None = None
+    """``multipath = "model"``: each satellite's single-difference phase multipath σ, m."""
+    multipath_time_constant_s: float = GNSS_DEFAULTS["multipath_time_constant_s"]
+    """``multipath = "model"``: its correlation time, s."""
     iono_threshold_km: float = GNSS_DEFAULTS["iono_threshold_km"]
     """With ``signals``: ``cdgps init`` refuses a baseline at least this long, km (the displacement path
     neglects the DD ionosphere; ``cdgps rtk`` estimates it)."""
@@ -923,7 +930,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         p.add("gnss.sigma_a_m", "sigma_a_m and sigma_b_m cannot both be 0")
     if v["max_age_s"] < v["sync_tol_s"]:
         p.add("gnss.max_age_s", f"expected at least gnss.sync_tol_s ({v['sync_tol_s']:g} s), got {v['max_age_s']!r}")
-    model, rw, init_sigma, accel, phase_noise = _gnss_displacement(p, g.get("displacement", {}), ctx)
+    model, rw, init_sigma, accel, phase_noise, mp = _gnss_displacement(p, g.get("displacement", {}), ctx)
     ants = _gnss_antennas(p, g.get("antennas", {}), ctx, resolve)
     for a in ants:
         if a.antenna_type is not None and a.antenna_type.strip().lower() != "none" and not v["antex"]:
@@ -943,6 +950,7 @@ def parse_gnss_config(text: str, path: str = "<config>", base_dir: str | Path | 
         max_gap_s=v["max_gap_s"], sync_tol_s=v["sync_tol_s"], max_age_s=v["max_age_s"],
         code_correlation_s=v["code_correlation_s"], epoch_alignment=v["epoch_alignment"], displacement=model,
         random_walk_sigma=rw, initial_sigma_m=init_sigma, accel_sigma_m_per_s_per_sqrt_s=accel, phase_noise=phase_noise,
+        multipath=mp[0], multipath_sigma_m=mp[1], multipath_time_constant_s=mp[2],
         min_success_rate=v["min_success_rate"], signals=signals,
         glonass_fix=v["glonass_fix"],
         iono_threshold_km=v["iono_threshold_km"], antex=resolve(v["antex"]) if v["antex"] else None,
@@ -971,7 +979,23 @@ def _gnss_displacement(p: Problems, disp, ctx: Context) -> tuple[str, tuple, flo
                                                           "displacement has no process noise)")
     if "accel_sigma_m_per_s_per_sqrt_s" in disp and disp.get("model", "static") != "constant_velocity":
         p.add("gnss.displacement.accel_sigma_m_per_s_per_sqrt_s", "only used with model = \"constant_velocity\"")
-    return v["model"], rw, v["initial_sigma_m"], v["accel_sigma_m_per_s_per_sqrt_s"], v["phase_noise"]
+    return (v["model"], rw, v["initial_sigma_m"], v["accel_sigma_m_per_s_per_sqrt_s"], v["phase_noise"],
+            _gnss_multipath(p, disp, v))
+
+
+def _gnss_multipath(p: Problems, disp: dict, v: dict) -> tuple:
+    """``[gnss.displacement] multipath`` and its σ, τ: (mode, σ m or None, τ s), the rules across the keys checked."""
+    mode, key = v["multipath"], "gnss.displacement.multipath"
+    if mode != "off" and disp.get("model", "static") == "static":
+        p.add(key, f"{mode!r} is only used with model = \"random_walk\" or \"constant_velocity\" (a static "
+                   f"displacement takes the static solution)")
+    given = [k for k in ("multipath_sigma_m", "multipath_time_constant_s") if k in disp]
+    if mode == "model" and "multipath_sigma_m" not in disp:
+        p.add(f"{key}_sigma_m", "needed with multipath = \"model\" (each satellite's phase multipath sigma, m)")
+    for k in given if mode != "model" else ():
+        p.add(f"gnss.displacement.{k}", f"only used with multipath = \"model\" (it is {mode!r})")
+    tau = v["multipath_time_constant_s"]
+    return mode, v["multipath_sigma_m"], GNSS_DEFAULTS["multipath_time_constant_s"] if tau is None else tau
 
 
 def _gnss_antennas(p: Problems, at, ctx: Context, resolve) -> list:

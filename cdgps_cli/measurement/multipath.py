@@ -254,11 +254,12 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
     sigma_mp, sigma_w = math.sqrt(v_mp), math.sqrt(v_w)
     # pooled Ljung–Box on the detection lags
     q, dof = 0.0, 0
+    # (samples further apart than the lags, e.g. a 15 s log: its first lag, not none)
+    detect_lags = sorted({max(1, int(round(s / dt_s))) for s in DETECT_LAGS_S})
     for r in runs:
         L, den = len(r), float(np.dot(r, r))
-        for s in DETECT_LAGS_S:
-            k = int(round(s / dt_s))
-            if 0 < k < L and den > 0:
+        for k in detect_lags:
+            if k < L and den > 0:
                 rho = float(np.dot(r[:L - k], r[k:])) / den
                 q += L * (L + 2) * rho**2 / (L - k)
                 dof += 1
@@ -266,7 +267,7 @@ def fit_autocovariance(resid: np.ndarray, segment: np.ndarray, dt_s: float) -> d
     bias_ratio = mean_variance_ratio(sigma_mp, tau, sigma_w, dt_s, int(round(L_med)))
     detected = dof > 0 and q > q_limit and bias_ratio >= DETECT_MIN_BIAS_VARIANCE_RATIO
     return {"detected": bool(detected), "ljung_box_q": q, "ljung_box_dof": dof, "ljung_box_limit": q_limit,
-            "lags_s": [float(s) for s in DETECT_LAGS_S],
+            "lags_s": [float(k * dt_s) for k in detect_lags],
             "sigma_m": float(min(max(sigma_mp, AUTO_MULTIPATH_SIGMA.lo), AUTO_MULTIPATH_SIGMA.hi)),
             "time_constant_s": float(min(max(tau, AUTO_MULTIPATH_TAU.lo), AUTO_MULTIPATH_TAU.hi)),
             "raw_sigma_m": sigma_mp, "raw_time_constant_s": float(tau), "white_sigma_m": sigma_w,

@@ -15,7 +15,10 @@ through ``transition(dt_s) -> (A, B, Q)``.  Implementations:
 * :class:`ConstantVelocity` — positions and velocities of n axes, the velocities random walks of σ
   (units/s/√s: white acceleration): A = [[I, dt I], [0, I]], Q = σ² [[dt³/3, dt²/2], [dt²/2, dt]] ⊗ I;
 * :class:`WithConstants` — another model's states followed by constants (e.g. ambiguities):
-  A = diag(A_d, I), B = [B_d; 0], Q = diag(Q_d, 0).
+  A = diag(A_d, I), B = [B_d; 0], Q = diag(Q_d, 0);
+* :class:`WithGaussMarkov` — another model's states followed by first-order Gauss–Markov states (e.g. a phase
+  multipath error per satellite, :mod:`cdgps_cli.measurement.multipath`): A = diag(A_d, a I), a = exp(−dt/τ),
+  Q = diag(Q_d, σ²(1 − a²) I) (the stationary variance σ² kept over every step).
 
 ``noise_factor(dt_s)`` gives G with G Gᵀ = Q (the square-root form the batch solver takes).
 """
@@ -31,7 +34,7 @@ from cdgps_cli.model.dynamics import discrete_model
 if TYPE_CHECKING:  # annotations only: the config reader (TOML, schema) is not on the rtk path
     from cdgps_cli.config.structure import StructureConfig
 
-__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "ConstantVelocity", "WithConstants"]
+__all__ = ["Dynamics", "ModalZOH", "RandomWalk", "Static", "ConstantVelocity", "WithConstants", "WithGaussMarkov"]
 
 
 class Dynamics:
@@ -167,3 +170,28 @@ class WithConstants(Dynamics):
     def noise_factor(self, dt_s: float) -> np.ndarray:
         G = self.dyn.noise_factor(dt_s)
         return np.vstack([G, np.zeros((self.n_const, G.shape[1]))])
+
+
+class WithGaussMarkov(Dynamics):
+    """The states of ``dyn`` followed by ``n_gm`` first-order Gauss–Markov states of stationary σ ``sigma`` (their
+    unit, e.g. m) and time constant ``tau_s`` (s), independent of each other and of ``dyn``'s noise."""
+
+    def __init__(self, dyn: Dynamics, n_gm: int, sigma: float, tau_s: float):
+        s, tau = float(sigma), float(tau_s)
+        if not (np.isfinite(s) and s >= 0):
+            raise ValueError(f"sigma must be a number >= 0, got {sigma!r}")
+        if not (np.isfinite(tau) and tau > 0):
+            raise ValueError(f"tau_s must be a positive number of seconds, got {tau_s!r}")
+        self.dyn, self.n_gm, self.sigma, self.tau_s = dyn, int(n_gm), s, tau
+        self.n, self.n_u = dyn.n + self.n_gm, dyn.n_u
+
+    def transition(self, dt_s: float):
+        dt = _check_dt(dt_s)
+        A, B, Q = self.dyn.transition(dt)
+        m = self.dyn.n
+        Aa, Qa = np.zeros((self.n, self.n)), np.zeros((self.n, self.n))
+        Aa[:m, :m], Qa[:m, :m] = A, Q
+        i = np.arange(m, self.n)
+        Aa[i, i] = np.exp(-dt / self.tau_s)
+        Qa[i, i] = self.sigma**2 * -np.expm1(-2.0 * dt / self.tau_s)
+        return Aa, np.vstack([B, np.zeros((self.n_gm, B.shape[1]))]), Qa

@@ -63,6 +63,7 @@ from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 from cdgps_cli.io.gnss_run import INGEST_SPP_SOURCE, GnssRun, antennas_info
 from cdgps_cli.pipeline.antenna_models import receiver_with_antenna_model
 from cdgps_cli.pipeline.gnss_ingest import anchor_obs, signal_obs
+from cdgps_cli.pipeline.gnss_multipath import multipath_note, multipath_settings
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
@@ -445,15 +446,31 @@ def _constant_velocity(model: SatelliteDDDisplacement, t: np.ndarray, accel_sigm
     return np.asarray(xs), np.asarray(ps), np.asarray(xf), np.asarray(pf), nis
 
 
-def _dynamics_of(dd: SatelliteDDDisplacement, model: str, sigma_rw, accel_sigma, p0_sigma: float):
+def _dynamics_of(dd: SatelliteDDDisplacement, model: str, sigma_rw, accel_sigma, p0_sigma: float,
+                 multipath: tuple | None = None):
     """(measurement model, dynamics, prior covariance at the first epoch) of a moving rover's states: the random
     walk of the displacements (3 states, σ ``sigma_rw`` m/√s), or constant velocity [displacement, velocity] (6,
-    ``accel_sigma`` m/s/√s) with the DDs seeing the displacements alone; the prior 0 ± ``p0_sigma``."""
+    ``accel_sigma`` m/s/√s) with the DDs seeing the displacements alone; the prior 0 ± ``p0_sigma``.  With
+    ``multipath`` (n, σ m, τ s: ``dd`` on [δx, m] with n multipath columns, :mod:`cdgps_cli.pipeline.gnss_multipath`)
+    n Gauss–Markov states follow, each from its stationary 0 ± σ."""
     if model == "random_walk":
-        return dd, RandomWalk(3, sigma_rw), np.eye(3) * p0_sigma**2
-    from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
-    from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
-    return Stacked([("dd", dd)], n_state=6), ConstantVelocity(3, accel_sigma), np.eye(6) * p0_sigma**2
+        meas, dyn, P0 = dd, RandomWalk(3, sigma_rw), np.eye(3) * p0_sigma**2
+    else:
+        from cdgps_cli.measurement.stacked import Stacked  # noqa: PLC0415
+        from cdgps_cli.model.dynamics_models import ConstantVelocity  # noqa: PLC0415
+        dyn, P0 = ConstantVelocity(3, accel_sigma), np.eye(6) * p0_sigma**2
+        meas = Stacked([("dd", dd)], n_state=6) if multipath is None else None
+    if multipath is None:
+        return meas, dyn, P0
+    from cdgps_cli.model.dynamics_models import WithGaussMarkov  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss_multipath import OnColumns  # noqa: PLC0415
+    n_gm, sigma, tau = multipath
+    nb = P0.shape[0]
+    P = np.zeros((nb + n_gm, nb + n_gm))
+    P[:nb, :nb] = P0
+    P[nb:, nb:] = np.eye(n_gm) * sigma**2
+    meas = dd if nb == 3 else OnColumns(dd, np.r_[0:3, nb:nb + n_gm], nb + n_gm)
+    return meas, WithGaussMarkov(dyn, n_gm, sigma, tau), P
 
 
 def _filtered(model, dyn, P0: np.ndarray, t: np.ndarray, smooth: bool):
@@ -779,7 +796,10 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
     stations = _stations(run)
     _check_master_position(run)
     model = run.cfg.displacement
-    per, events, noise = {}, [], {}
+    if spill is not None and run.cfg.multipath != "off" and model != "static":
+        raise CdgpsError(f"[gnss.displacement] multipath = {run.cfg.multipath!r} with several INITs: multipath states "
+                         f"are estimated over one window; give one INIT (or multipath = \"off\")")
+    per, events, noise, mps = {}, [], {}, {}
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: INIT's solution and integers, {model} states …")
         res, w, rov, _ = solve_with_init_integers(run, init, r, stations)
@@ -800,7 +820,9 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
         sl = slice(3 * j, 3 * j + 3)
         idx = np.searchsorted(t_all, w["data"].t_label)
         frames.setdefault(r, np.asarray(w["x_final"], dtype=np.float64))
-        track, groups, n_blind = _rover_forward(a, w, sl, idx, model, run.cfg, res, carried.get(r), frames[r])
+        track, groups, n_blind, mp = _rover_forward(a, w, sl, idx, model, run.cfg, res, carried.get(r), frames[r])
+        if mp is not None:
+            mps[r] = mp
         if track is not None:
             carried[r] = track.last()
         tracks[r] = track
@@ -810,13 +832,15 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
         n_fix = n_fixed_with_glonass(res["ambiguities"])
         summary_rovers[r] = dict(_rover_summary(res, w, names[sl]), epochs=int(idx.size), n_fixed_with_glonass=n_fix,
                                  epochs_without_fixed_dd=n_blind if n_fix else int(idx.size),
-                                 **({"phase_noise": noise[r]} if r in noise else {}))
+                                 **({"phase_noise": noise[r]} if r in noise else {}),
+                                 **({"multipath": mps[r]} if r in mps else {}))
         per[r] = None                    # (the rover's rows: what the later passes need is in residual_inputs)
     info = SimpleNamespace(cfg=run.cfg, master=run.master, rovers=list(run.rovers), path=run.path,
                            antennas=antennas_summary(run) if run.antex is not None else None, names=names,
                            window=init_window(init))
     out = _WindowPass(a, tracks, residual_inputs, summary_rovers, events,
-                      [_phase_noise_note(r, v) for r, v in noise.items()], signals, info)
+                      [_phase_noise_note(r, v) for r, v in noise.items()]
+                      + [multipath_note(r, v) for r, v in mps.items()], signals, info)
     return out if spill is None else _spill_window(out, spill)
 
 
@@ -926,12 +950,13 @@ def _final_states(a, passes: list, rover: str, smooth: bool, hist):
     else:
         xs, ps = xf, pf
     cols = first.cols
+    k = cols.size                       # (the rover's own states: multipath states after them are not written)
     for i, j in _rows_in_chunks(a.n) if several else [(0, a.n)]:
-        a.q[i:j, cols] = first.origin + xs[i:j]
-        a.P[i:j, cols[:, None], cols] = ps[i:j]
+        a.q[i:j, cols] = first.origin + xs[i:j, :k]
+        a.P[i:j, cols[:, None], cols] = ps[i:j, :k, :k]
         if a.qf is not None:
-            a.qf[i:j, cols] = first.origin + xf[i:j]
-            a.Pf[i:j, cols[:, None], cols] = pf[i:j]
+            a.qf[i:j, cols] = first.origin + xf[i:j, :k]
+            a.Pf[i:j, cols[:, None], cols] = pf[i:j, :k, :k]
         for arr in (a.q, a.P, a.qf, a.Pf, xs, ps, xf, pf):
             if arr is not None:
                 hist.release(arr, i, j)
@@ -1300,9 +1325,31 @@ class _EstimateArrays:
         self.kin_pdop[ki, j] = ka["pdop"]
 
 
-def _displacement_dynamics(dd: SatelliteDDDisplacement, model: str, cfg):
+def _displacement_dynamics(dd: SatelliteDDDisplacement, model: str, cfg, multipath: tuple | None = None):
     """:func:`_dynamics_of` with the run config's process noise and prior."""
-    return _dynamics_of(dd, model, cfg.random_walk_sigma, cfg.accel_sigma_m_per_s_per_sqrt_s, cfg.initial_sigma_m)
+    return _dynamics_of(dd, model, cfg.random_walk_sigma, cfg.accel_sigma_m_per_s_per_sqrt_s, cfg.initial_sigma_m,
+                        multipath)
+
+
+def _rover_model(w: dict, ptr: np.ndarray, idx, n: int, groups, model: str, cfg, use: np.ndarray, mp: dict | None):
+    """A moving rover's (measurement model, dynamics, prior) on the window's axis of ``n`` epochs (its own at
+    ``idx``): the DD phases of each signal group (``groups``) on the displacement states, and with multipath states
+    (``mp``: :func:`~cdgps_cli.pipeline.gnss_multipath.multipath_settings`) one Gauss–Markov state per satellite and
+    group, the white variances × its ``white_factor``."""
+    d = w["data"]
+    states = mp is not None and "sigma_m" in mp
+    if states:
+        from cdgps_cli.pipeline.gnss_multipath import state_columns  # noqa: PLC0415
+        col, n_gm = state_columns(d, use)
+    var = w["var_ph"] * mp["white_factor"] if states and mp["white_factor"] != 1.0 else w["var_ph"]
+    obs = []
+    for u, ref in groups:
+        ref_all = np.full(n, -1, dtype=np.int64)
+        ref_all[idx] = ref
+        obs.append(SDObservations(w["r_ph"], var, ref_all, usable=u, **(
+            {"ambiguity_col": col, "wavelength_m": 1.0} if states else {})))
+    dd = SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs, n_ambiguities=n_gm if states else 0)
+    return _displacement_dynamics(dd, model, cfg, (n_gm, mp["sigma_m"], mp["time_constant_s"]) if states else None)
 
 
 class _RoverTrack(NamedTuple):
@@ -1352,6 +1399,7 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
     fixed_any = n_fixed_with_glonass(res["ambiguities"]) > 0
     use = known[w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
     c, dof, has, groups = _epoch_information(w, use)
+    mp = None if model == "static" else multipath_settings(cfg, w, use)
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
     track = None
     if model == "static":
@@ -1360,13 +1408,8 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
         nis = np.where(has, c, np.nan)
     else:
         ptr = _pointers_on_axis(d.ptr, idx, a.n)
-        obs = []
-        for u, ref in groups:
-            ref_all = np.full(a.n, -1, dtype=np.int64)
-            ref_all[idx] = ref
-            obs.append(SDObservations(w["r_ph"], w["var_ph"], ref_all, usable=u))
-        meas, dyn, P0 = _displacement_dynamics(SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs), model, cfg)
-        nx = P0.shape[0]
+        meas, dyn, P0 = _rover_model(w, ptr, idx, a.n, groups, model, cfg, use, mp)
+        nx = 6 if model == "constant_velocity" else 3          # (the rover's own states; multipath states after)
         cols = np.r_[np.arange(sl.start, sl.stop), a.nq + np.arange(sl.start, sl.stop)][:nx]
         origin = np.r_[x_fin, np.zeros(nx - 3)]               # (the velocities' origin: 0)
         shift = None if carried is None else np.r_[x_fin - frame, np.zeros(nx - 3)]
@@ -1376,7 +1419,7 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
         nis = fr["nis"][idx]
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
-    return track, groups, int(np.sum(~has))
+    return track, groups, int(np.sum(~has)), mp
 
 
 def _residual_inputs(w: dict, groups) -> SimpleNamespace:

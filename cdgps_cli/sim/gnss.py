@@ -37,6 +37,7 @@ from cdgps_cli.io.atomic import output_set, write_atomic, write_bytes_atomic
 from cdgps_cli.io.coordinate_columns import coordinate_column
 from cdgps_cli.config.structure import GnssConfig, gnss_config_toml
 from cdgps_cli.model.gps.orbits import MAX_EPHEMERIS_AGE_S, ecef_to_geodetic, enu_matrix
+from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.model.gps.positioning import simulate_static_pair, synthetic_gps_nav
 from cdgps_cli.config.limits import SIMULATION_START_RANGE, check_on_earth, check_table_size
@@ -122,7 +123,8 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                        n_slips: int = 0, phase_sigma_m: float | None = None, code_sigma_m: float = 0.5,
                        mask_deg: float = 10.0, clock_offset_ms=(0.0, 0.0), clock_drift_ms=(-4.0, 5.0),
                        raw_tags: bool = False, master_rate_hz: float | None = None,
-                       accel_sigma: float | None = None, progress=None) -> dict:
+                       accel_sigma: float | None = None, multipath_sigma_m: float = 0.0,
+                       multipath_tau_s: float = 30.0, progress=None) -> dict:
     """Simulate a master and a (displaced) rover and write RINEX, truth and config files.
 
     Parameters
@@ -177,6 +179,11 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
     master_rate_hz : float, optional
         The master records at this lower rate (``rate_hz`` a whole multiple of it), e.g. 0.2 for
         a 5 s CORS receiver beside a 1 Hz rover.
+    multipath_sigma_m, multipath_tau_s : float
+        Phase multipath of the rover (0: none): each satellite's L1 phase carries a first-order Gauss–Markov error
+        of stationary σ ``multipath_sigma_m`` (m) and time constant ``multipath_tau_s`` (s), independent between
+        satellites (:func:`rover_phase_multipath`), beside the white noise; the errors a static antenna's
+        reflections give, correlated over tens of seconds.
 
     Returns
     -------
@@ -184,6 +191,7 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
         Summary: files, epochs, rows, slips, positions, displacement model.
     """
     say = progress or (lambda m: None)
+    _check_multipath(multipath_sigma_m, multipath_tau_s)
     every = _check_pair_options(duration_s, rate_hz, master, rover, master_xyz, rover_xyz, start_gps_s,
                                 clock_offset_ms, clock_drift_ms, master_rate_hz, random_walk_sigma, n_slips,
                                 accel_sigma)
@@ -193,11 +201,14 @@ def simulate_gnss_pair(out_dir: str | Path, *, duration_s: float = 3600.0, rate_
                    random_walk_sigma=random_walk_sigma, accel_sigma=accel_sigma, n_slips=n_slips,
                    code_sigma_m=code_sigma_m,
                    mask_deg=mask_deg, clock_offset_ms=clock_offset_ms, clock_drift_ms=clock_drift_ms,
-                   raw_tags=raw_tags, master_rate_hz=master_rate_hz, nav_source=nav_source)
+                   raw_tags=raw_tags, master_rate_hz=master_rate_hz, nav_source=nav_source,
+                   multipath_sigma_m=float(multipath_sigma_m), multipath_tau_s=float(multipath_tau_s))
     disp = np.asarray(displacement_enu_m, dtype=np.float64)
     offsets, velocity = _rover_offsets(run, disp)
     phase_noise, phase_model = _phase_noise_model(phase_sigma_m)
     sim = _simulate_pair(run, nav, disp, offsets, phase_noise, say)
+    if run.multipath_sigma_m > 0:
+        sim["rover"] = rover_phase_multipath(sim["rover"], run.multipath_sigma_m, run.multipath_tau_s, run.seed)
     slip_note = _slip_note(run, sim["slips"], say)
     say(f"writing RINEX: {len(sim['base'])} + {len(sim['rover'])} satellite-epoch records …")
     out = Path(out_dir)
@@ -243,6 +254,8 @@ class _PairRun:
     raw_tags: bool
     master_rate_hz: float | None
     nav_source: object
+    multipath_sigma_m: float = 0.0
+    multipath_tau_s: float = 30.0
 
     @property
     def interval_s(self) -> float:
@@ -383,6 +396,42 @@ def _simulate_pair(run: _PairRun, nav, disp: np.ndarray, offsets: np.ndarray, ph
     return sim
 
 
+def _check_multipath(sigma_m: float, tau_s: float) -> None:
+    if not (math.isfinite(sigma_m) and sigma_m >= 0):
+        raise CdgpsError(f"--multipath-m must be >= 0 (m), got {sigma_m!r}")
+    if not (math.isfinite(tau_s) and tau_s > 0):
+        raise CdgpsError(f"--multipath-tau-s must be a positive number of seconds, got {tau_s!r}")
+
+
+def rover_phase_multipath(obs: pd.DataFrame, sigma_m: float, tau_s: float, seed: int) -> pd.DataFrame:
+    """``obs`` (a receiver's records: ``time_gps_s``, ``sat``, ``phase_l1_cycles``) with a first-order Gauss–Markov
+    phase error per satellite added: m_1 ~ N(0, σ²), m_k = a m_{k−1} + σ √(1 − a²) ω_k, a = exp(−Δt/τ) over each
+    step Δt between the satellite's records (a gap lets it decorrelate as the process does), ω_k ~ N(0, 1) from its
+    own generator (``seed``; the white noise is not changed).  σ ``sigma_m`` m, τ ``tau_s`` s."""
+    from scipy.signal import lfilter  # noqa: PLC0415
+
+    _check_multipath(sigma_m, tau_s)
+    out = obs.copy()
+    gen = np.random.default_rng(seed + 7919)
+    t = out["time_gps_s"].to_numpy(dtype=np.float64)
+    err = np.zeros(len(out))
+    for _, rows in sorted(out.groupby("sat", sort=True).indices.items()):
+        rows = rows[np.argsort(t[rows], kind="stable")]
+        w = gen.standard_normal(rows.size)
+        dt = np.diff(t[rows])
+        m = np.empty(rows.size)
+        m[0] = sigma_m * w[0]
+        # runs of one spacing are one linear recursion each (lfilter), carried on from the run before
+        cuts = np.flatnonzero(np.diff(dt) != 0) + 1
+        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, dt.size]):
+            a = math.exp(-dt[lo] / tau_s)
+            drive = sigma_m * math.sqrt(-math.expm1(-2.0 * dt[lo] / tau_s)) * w[lo + 1:hi + 1]
+            m[lo + 1:hi + 1], _ = lfilter([1.0], [1.0, -a], drive, zi=[a * m[lo]])
+        err[rows] = m
+    out["phase_l1_cycles"] = out["phase_l1_cycles"].to_numpy() + err / GPS_L1_WAVELENGTH_M
+    return out
+
+
 def _slip_note(run: _PairRun, slips, say) -> str | None:
     """Why fewer slips were made than requested (also said as a warning), or None."""
     if len(slips) >= run.n_slips:
@@ -461,6 +510,9 @@ def _truth_rover_fields(run: _PairRun, disp, offsets, names, phase_noise, phase_
         "cn0_model": "C/N0 = 35 + 15 sin(el) dB-Hz (no noise); RINEX S1C and the L1C signal-strength digit from it",
         "mask_deg": run.mask_deg,
         "navigation": run.nav_source,
+        **({"phase_multipath": {"sigma_m": run.multipath_sigma_m, "time_constant_s": run.multipath_tau_s,
+                                "model": "first-order Gauss-Markov per satellite on the rover's L1 phase"}}
+           if run.multipath_sigma_m > 0 else {}),
     }
 
 

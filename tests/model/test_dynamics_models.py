@@ -67,3 +67,33 @@ def test_with_constants_appends_constant_states():
     assert not Q[3:].any() and not Q[:, 3:].any()
     G = dyn.noise_factor(3.0)
     np.testing.assert_allclose(G @ G.T, Q, rtol=1e-15, atol=1e-20)
+
+
+def test_gauss_markov_states_keep_their_stationary_variance_and_match_the_multipath_model():
+    from cdgps_cli.measurement.multipath import MultipathModel
+    from cdgps_cli.model.dynamics_models import ConstantVelocity, WithGaussMarkov
+
+    base = ConstantVelocity(3, 0.2)
+    dyn = WithGaussMarkov(base, 4, 0.007, 34.0)
+    assert (dyn.n, dyn.n_u) == (10, 0)
+    mp = MultipathModel(0.007, 34.0)
+    for dt in (0.1, 1.0, 5.0, 300.0):
+        A, B, Q = dyn.transition(dt)
+        Ab, _, Qb = base.transition(dt)
+        np.testing.assert_array_equal(A[:6, :6], Ab)
+        np.testing.assert_array_equal(Q[:6, :6], Qb)
+        assert not A[:6, 6:].any() and not A[6:, :6].any() and not Q[:6, 6:].any()
+        np.testing.assert_allclose(np.diag(A)[6:], mp.transition(dt), rtol=1e-15)
+        np.testing.assert_allclose(np.diag(Q)[6:], mp.process_variance_m2(dt), rtol=1e-14)
+        # σ² stays σ² over a step: a² σ² + q = σ² (the stationary process)
+        np.testing.assert_allclose(np.diag(A)[6:] ** 2 * 0.007**2 + np.diag(Q)[6:], 0.007**2, rtol=1e-13)
+        assert B.shape == (10, 0)
+    # two steps are one step of their sum (a Markov process sampled at any spacing)
+    A1, _, Q1 = dyn.transition(2.0)
+    A2, _, Q2 = dyn.transition(3.0)
+    A5, _, Q5 = dyn.transition(5.0)
+    np.testing.assert_allclose((A2 @ A1)[6:, 6:], A5[6:, 6:], rtol=1e-14)
+    np.testing.assert_allclose((A2 @ Q1 @ A2.T + Q2)[6:, 6:], Q5[6:, 6:], rtol=1e-13)
+    for bad in ((-1.0, 30.0), (0.01, 0.0), (np.nan, 30.0)):
+        with pytest.raises(ValueError):
+            WithGaussMarkov(RandomWalk(3, 0.001), 2, *bad)

@@ -18,24 +18,12 @@ import json
 import numpy as np
 import pytest
 
+from tests.pipeline._gnss_chain import estimate_chain
 from tests._shared import REPO_ROOT, run_cli
 
 MOSAIC = REPO_ROOT.parent / "shared" / "data" / "real-pairs" / "mosaic-static"
 
 
-def _chain(d, cfg_text: str, tag: str):
-    cfg = d / f"{tag}.toml"
-    cfg.write_text(cfg_text)
-    for args in (["ingest", "--config", cfg, "-o", d / f"run_{tag}.mcap"],
-                 ["init", d / f"run_{tag}.mcap", "-o", d / f"init_{tag}.json"]):
-        r = run_cli("-q", *args)
-        assert r.exit_code == 0, r.output
-    r = run_cli("-q", "estimate", d / f"run_{tag}.mcap", "--init", d / f"init_{tag}.json", "--smooth",
-                "-o", d / f"states_{tag}.mcap", "--json")
-    assert r.exit_code == 0, r.output
-    est = json.loads(r.stdout)
-    r = run_cli("-q", "evaluate", "--truth", d, "--estimate", d / f"states_{tag}.mcap", "--json")
-    return est, (json.loads(r.stdout) if r.exit_code == 0 else None)
 
 
 def _auto(text: str) -> str:
@@ -49,7 +37,7 @@ def quiet_receivers(tmp_path_factory):
                 "--random-walk", "0.002", "-o", d)
     assert r.exit_code == 0, r.output
     text = (d / "config.toml").read_text()
-    return d, {tag: _chain(d, t, tag) for tag, t in (("model", text), ("auto", _auto(text)))}
+    return d, {tag: estimate_chain(d, t, tag) for tag, t in (("model", text), ("auto", _auto(text)))}
 
 
 def test_auto_gives_honest_sigma_where_the_model_is_too_large(quiet_receivers):
@@ -70,7 +58,7 @@ def test_auto_gives_honest_sigma_where_the_model_is_too_large(quiet_receivers):
 def test_with_the_models_own_noise_the_factor_is_one(tmp_path):
     r = run_cli("-q", "simulate-gnss", "--duration", "300", "--seed", "4", "--random-walk", "0.002", "-o", tmp_path)
     assert r.exit_code == 0, r.output
-    est, _ = _chain(tmp_path, _auto((tmp_path / "config.toml").read_text()), "auto")
+    est, _ = estimate_chain(tmp_path, _auto((tmp_path / "config.toml").read_text()), "auto")
     pn = est["rovers"]["rover"]["phase_noise"]
     n = pn["dof"]
     assert abs(pn["factor"] - 1.0) < 4 * np.sqrt(2.0 / n)            # χ²/n: relative σ √(2/n)
@@ -120,7 +108,7 @@ def test_real_geodetic_receivers_scatter_far_less_than_the_model(tmp_path):
                 "--nav", MOSAIC / "base.nav", "--master", "base", "--signals", "G:L1,E:E1", "--displacement",
                 "random_walk", "-o", cfg)
     assert r.exit_code == 0, r.output
-    est, _ = _chain(tmp_path, _auto(cfg.read_text()), "auto")
+    est, _ = estimate_chain(tmp_path, _auto(cfg.read_text()), "auto")
     pn = est["rovers"]["rover"]["phase_noise"]
     assert 0.02 < pn["factor"] < 0.1 and pn["dof"] > 1000
     from cdgps_cli.io.file_checks import read_init_json

@@ -225,3 +225,35 @@ def test_default_noise_model_is_the_estimators_weighting(tmp_path):
     assert tw["phase_sigma_m"] == 0.002 and tw["phase_noise_model"].startswith("white")
     with pytest.raises(CdgpsError, match="phase-noise-m"):
         _gnss_sim(tmp_path, "x", duration_s=30.0, phase_sigma_m=-1.0)
+
+
+def test_rover_phase_multipath_is_the_gauss_markov_process_it_claims():
+    """σ, the autocorrelation exp(−lag/τ), independence between satellites, a gap's decorrelation (exp(−gap/τ)),
+    and the phases' other contents untouched."""
+    from cdgps_cli.sim.gnss import rover_phase_multipath
+
+    t = np.arange(40_000.0)
+    obs = pd.DataFrame({"time_gps_s": np.tile(t, 2), "sat": np.repeat(["G01", "G02"], t.size), "phase_l1_cycles": 1e3})
+    out = rover_phase_multipath(obs, 0.005, 30.0, seed=3)
+    m = (out["phase_l1_cycles"].to_numpy() - 1e3) * GPS_L1_WAVELENGTH_M
+    a, b = m[:t.size], m[t.size:]
+    for x in (a, b):
+        assert np.std(x) == pytest.approx(0.005, rel=0.1)
+        x0 = x - x.mean()
+        rho = lambda k: float(np.dot(x0[:-k], x0[k:]) / np.dot(x0, x0))   # noqa: E731
+        assert rho(1) == pytest.approx(np.exp(-1 / 30), abs=0.01)
+        assert rho(30) == pytest.approx(np.exp(-1), abs=0.12)
+    assert abs(np.corrcoef(a, b)[0, 1]) < 0.1                              # satellites independent
+    # two records per satellite, 3 s or 60 s apart: their correlation is exp(−Δt/τ) (0.905, 0.135)
+    sats = [f"S{i:04d}" for i in range(4000)]
+    for gap, want in ((3.0, np.exp(-0.1)), (60.0, np.exp(-2.0))):
+        two = pd.DataFrame({"time_gps_s": np.tile([0.0, gap], len(sats)), "sat": np.repeat(sats, 2),
+                            "phase_l1_cycles": 0.0})
+        v = rover_phase_multipath(two, 0.005, 30.0, seed=5)["phase_l1_cycles"].to_numpy().reshape(-1, 2)
+        assert np.corrcoef(v[:, 0], v[:, 1])[0, 1] == pytest.approx(want, abs=0.05)
+        assert np.std(v) * GPS_L1_WAVELENGTH_M == pytest.approx(0.005, rel=0.05)
+    assert list(out.columns) == list(obs.columns) and obs["phase_l1_cycles"].eq(1e3).all()   # input not modified
+    with pytest.raises(CdgpsError, match="multipath-tau-s"):
+        rover_phase_multipath(obs, 0.005, 0.0, seed=3)
+    with pytest.raises(CdgpsError, match="multipath-m"):
+        rover_phase_multipath(obs, -1.0, 30.0, seed=3)
