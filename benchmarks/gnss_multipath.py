@@ -51,11 +51,15 @@ def _with(text: str, mode: str) -> str:
     return text.replace('model = "random_walk"', f'model = "random_walk"\nphase_noise = "auto"\nmultipath = "{mode}"', 1)
 
 
-def _nees_against(states_path: Path, truth: dict | None) -> dict:
-    """NEES per dof (diagonal σ), error RMS and mean σ (mm) of the rover's E/N/U states against the static solution
-    (``truth`` None) or truth.csv's displacement (``truth``: its times and E/N/U, m)."""
+def _nees_against(states_path: Path, truth_dir: Path | None) -> dict:
+    """NEES per dof (diagonal σ), error RMS and σ RMS (mm) of the rover's E/N/U states: against a simulated pair's
+    truth by ``cdgps evaluate`` (``truth_dir``), else against the pair's static solution (its own INIT's)."""
     from cdgps_cli.io.states import States
 
+    if truth_dir is not None:
+        ev = json.loads(_run(["evaluate", "--truth", truth_dir, "--estimate", states_path, "--json"])[0])
+        return {"rover": {"nees_per_dof": ev["nees"]["mean"] / ev["nees"]["dof"],
+                          "error_rms_mm": [1e3 * v for v in ev["rms_error"].values()]}}
     st = States(states_path)
     rov = st.metadata["rovers"]
     rov = json.loads(rov) if isinstance(rov, str) else rov
@@ -64,12 +68,7 @@ def _nees_against(states_path: Path, truth: dict | None) -> dict:
         names = list(v["static_enu_m"])
         cols = [st.coord_names.index(n) for n in names]
         q, s = np.asarray(st.q)[:, cols], np.asarray(st.sigma_q)[:, cols]
-        if truth is None:
-            ref = np.array([v["static_enu_m"][n] for n in names])
-        else:
-            t = np.asarray(st.time_s)
-            ref = np.column_stack([np.interp(t, truth["t"], truth[n]) for n in names])
-        e = q - ref
+        e = q - np.array([v["static_enu_m"][n] for n in names])
         ok = np.isfinite(e).all(axis=1) & (s > 0).all(axis=1)
         out[r] = {"epochs": int(ok.sum()), "nees_per_dof": float(np.mean((e[ok] / s[ok]) ** 2)),
                   "error_rms_mm": [float(x) for x in 1e3 * np.sqrt(np.mean(e[ok] ** 2, axis=0))],
@@ -77,15 +76,7 @@ def _nees_against(states_path: Path, truth: dict | None) -> dict:
     return out
 
 
-def _truth(d: Path) -> dict:
-    import pandas as pd
-
-    tab = pd.read_csv(d / "truth.csv")
-    tcol = [c for c in tab.columns if c.startswith("time")][0]
-    return {"t": tab[tcol].to_numpy(), **{c: tab[c].to_numpy() for c in tab.columns if c != tcol}}
-
-
-def one_pair(name: str, cfg_text: str, work: Path, truth: dict | None) -> dict:
+def one_pair(name: str, cfg_text: str, work: Path, truth: Path | None) -> dict:
     rows = {}
     for mode in ("off", "auto"):
         cfg = work / f"{mode}.toml"
@@ -116,7 +107,7 @@ def main() -> None:
                 _run(["simulate-gnss", "--duration", 1200, "--seed", seed, "--phase-noise-m", 0.001, "--random-walk",
                       0.001, "--multipath-m", mp, "--multipath-tau-s", 40, "-o", d])
                 name = f"simulated seed {seed}, multipath {mp * 1e3:g} mm / 40 s"
-                results[name] = one_pair(name, (d / "config.toml").read_text(), d, _truth(d))
+                results[name] = one_pair(name, (d / "config.toml").read_text(), d, d)
         pairs = {}
         if MOSAIC.exists():
             pairs["mosaic-static (G:L1, E:E1)"] = (["--rinex", f"base={MOSAIC / 'base.obs'}", "--rinex",

@@ -65,6 +65,8 @@ STATE_FILTERED_TOPIC = "/cdgps/state_filtered"
 RESIDUAL_TOPIC = "/cdgps/residuals"
 EVENT_TOPIC = "/cdgps/events"
 INIT_ATTACHMENT = "init.json"
+#: the STATES attachment listing every INIT of a GNSS estimate made from several (their file, window, sha256 and text)
+INIT_WINDOWS_ATTACHMENT = "init_windows.json"
 ESTIMATE_METADATA = "cdgps.estimate"
 ANGLES_TOPIC = "/cdgps/angles_deg"
 SCENE_TOPIC = "/cdgps/scene"

@@ -67,7 +67,8 @@ from cdgps_cli.pipeline.gnss_multipath import multipath_note, multipath_settings
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
-from cdgps_cli.io.states import ESTIMATE_METADATA, INIT_ATTACHMENT, STATE_FILTERED_TOPIC, STATE_TOPIC, States
+from cdgps_cli.io.states import (ESTIMATE_METADATA, INIT_ATTACHMENT, INIT_WINDOWS_ATTACHMENT, STATE_FILTERED_TOPIC,
+                                  STATE_TOPIC, States)
 
 __all__ = ["gnss_init", "gnss_estimate", "export_kinematic_csv", "KINEMATIC_TOPIC",
            "is_gnss_states"]
@@ -1564,10 +1565,6 @@ def _raised_walks(init: dict) -> dict:
     used = {r: v["float"]["random_walk_sigma_used_m_per_sqrt_s"] for r, v in (init.get("rovers") or {}).items()
             if (v.get("float") or {}).get("random_walk_sigma_used_m_per_sqrt_s") is not None}
     return {"init_random_walk_sigma_used_m_per_sqrt_s": used} if used else {}
-
-
-#: the STATES attachment listing every INIT of an estimate made from several (their file, window and sha256)
-INIT_WINDOWS_ATTACHMENT = "init_windows.json"
 
 
 def _write_gnss_states(run, inits: list, out_path, names, t, q, P, qf, Pf, kinematic: tuple,

@@ -27,6 +27,7 @@ from cdgps_cli.core.gps_time import gps_time_str
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.io.atomic import output_set, write_bytes_atomic
 from cdgps_cli.io.provenance import provenance_rows, report_provenance, value_text
+from cdgps_cli.io.states import INIT_WINDOWS_ATTACHMENT
 from cdgps_cli.report import run_figures as figs
 from cdgps_cli.report.envelope import DEFAULT_BINS
 from cdgps_cli.report.mac import mac_matrix
@@ -196,10 +197,17 @@ def _stage_rows(states, run) -> list[list[str]]:
         io = init.get("options", {})
         made = [f"cdgps init on {Path(str(init.get('run', '?'))).name}, {_init_window_text(init.get('window'))}",
                 _init_fixing_text(init)]
-        rows.append(["INIT.json (attached to the STATES)",
+        windows = _init_windows(meta)
+        rows.append(["INIT.json of the first window (attached to the STATES)" if windows else
+                     "INIT.json (attached to the STATES)",
                      "; ".join(x for x in made if x) + "; options: "
                      + "; ".join(f"{k} = {v}" for k, v in sorted(io.items())
                                  if v is not None and not isinstance(v, (dict, list)))])
+        if windows:
+            rows.append([f"the {len(windows)} windows' INITs ({INIT_WINDOWS_ATTACHMENT} attached)",
+                         "; ".join(f"{k + 1}. {Path(str(w.get('init', '?'))).name}, "
+                                   f"{_init_window_text(w.get('window'))}, sha256 {str(w.get('init_sha256', '?'))[:12]}…"
+                                   for k, w in enumerate(windows))])
     try:
         eo = json.loads(meta.get("options", "{}"))
     except ValueError:
@@ -209,6 +217,15 @@ def _stage_rows(states, run) -> list[list[str]]:
                  f"{meta.get('covariance', '?')}; options: "
                  + "; ".join(f"{k} = {value_text(v)}" for k, v in sorted(eo.items()) if v is not None)])
     return rows
+
+
+def _init_windows(meta: dict) -> list:
+    """The INITs of a STATES made from several (``init_windows`` metadata: each one's file, window, sha256), else []."""
+    try:
+        got = json.loads(meta.get("init_windows") or "[]")
+    except ValueError:
+        return []
+    return [w for w in got if isinstance(w, dict)] if isinstance(got, list) else []
 
 
 def _init_window_text(w) -> str:
@@ -388,7 +405,10 @@ def _kinematic_figures(page: _Page, states, n_bins: int, chunk_epochs: int) -> N
 
 def _fix_text(states) -> str:
     """The integer ambiguities each rover's estimate used (INIT.json attached to the STATES): fixed or
-    float, how many, the ratio test."""
+    float, how many, the ratio test; from several INITs, each window's (the STATES' rover summary)."""
+    windows = _window_fix_text(states)
+    if windows:
+        return windows
     rovers = (states.init or {}).get("rovers") or {}
     parts = []
     for name, r in sorted(rovers.items()):
@@ -397,6 +417,22 @@ def _fix_text(states) -> str:
             parts.append(f"{name}: {str(r['solution']).upper()} ({r.get('n_fixed', '?')} of {r.get('n_estimated', '?')} "
                          f"ambiguities fixed" + (f", ratio {ratio:.3g}" if isinstance(ratio, (int, float)) else "") + ")")
     return (" Integers (from the INIT the estimate started from): " + "; ".join(parts) + ".") if parts else ""
+
+
+def _window_fix_text(states) -> str:
+    """Each window's integers per rover of a STATES made from several INITs (``rovers.<r>.windows``), else ""."""
+    try:
+        rovers = json.loads(states.metadata.get("rovers") or "{}")
+    except (ValueError, TypeError):
+        return ""
+    parts = []
+    for name, r in sorted((rovers if isinstance(rovers, dict) else {}).items()):
+        wins = r.get("windows") if isinstance(r, dict) else None
+        if isinstance(wins, list) and len(wins) > 1:
+            each = ", ".join(f"{Path(str(w.get('init', '?'))).name} {w.get('solution', '?')} "
+                             f"({w.get('n_fixed', '?')} of {w.get('n_estimated', '?')})" for w in wins if isinstance(w, dict))
+            parts.append(f"{name}: {each}")
+    return (" Integers (each window's INIT): " + "; ".join(parts) + ".") if parts else ""
 
 
 def _consistency_section(page: _Page, states, scan) -> None:

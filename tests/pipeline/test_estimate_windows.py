@@ -216,3 +216,23 @@ def test_phase_noise_auto_is_said_once_per_rover_with_the_windows_range(tmp_path
     assert len(notes) == 1 and "over its 3 windows" in notes[0], notes
     rov = json.loads(States(tmp_path / "s.mcap").metadata["rovers"])["rover"]
     assert len({w["phase_noise"]["factor"] for w in rov["windows"]}) == 3          # each window its own factor
+
+
+def test_the_run_report_names_every_windows_init(record, tmp_path):
+    """``report run`` on a STATES from several INITs: the first window's INIT as the attached one, then every window's
+    INIT (file, window, sha256) and each window's integers (it showed the first window's alone)."""
+    import hashlib
+    import html
+    import re
+
+    d, model = record
+    if model != "random_walk":
+        pytest.skip("one displacement model is enough for the page")
+    _cli_ok("-q", "estimate", d / "run.mcap", "--init", d / "w1.json", "--init", d / "w2.json", "-o", tmp_path / "s.mcap")
+    _cli_ok("-q", "report", "run", tmp_path / "s.mcap", "-o", tmp_path / "page")
+    text = re.sub(r"<[^>]+>", " ", html.unescape((tmp_path / "page" / "index.html").read_text()))
+    assert "INIT.json of the first window (attached to the STATES)" in text
+    sha = [hashlib.sha256((d / f"w{k}.json").read_bytes()).hexdigest()[:12] for k in (1, 2)]
+    assert re.search(rf"the 2 windows' INITs \(init_windows.json attached\)\s+1\. w1\.json, window from 0 s for 450 s, "
+                     rf"sha256 {sha[0]}…; 2\. w2\.json, window from 450 s for 450 s, sha256 {sha[1]}…", text)
+    assert re.search(r"Integers \(each window's INIT\): rover: w1\.json \w[\w ]* \(\d+ of \d+\), w2\.json", text)

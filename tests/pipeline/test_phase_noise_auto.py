@@ -13,8 +13,6 @@ the single-epoch solutions' DD phase residuals (:func:`cdgps_cli.pipeline.gnss.p
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
