@@ -31,9 +31,10 @@ the edit and (GPS records only: Debian rnx2rtkp produces no solution from the fi
 records, not investigated) for RTKLIB, whose base there is the unedited RINEX of the same log.  Writes ``docs/benchmarks/vibration_real.json``.
 
 Run: ``PYTHONPATH=. .venv/bin/python benchmarks/bench_vibration_real.py [--quick] [--no-rtklib] [--only DATA]
-[--m8p DIR] [--cv] [--phase-noise-auto] [--out JSON]``; ``--cv`` adds the pipeline's constant-velocity model
+[--m8p DIR] [--cv] [--phase-noise-auto] [--multipath-auto] [--out JSON]``; ``--cv`` adds the pipeline's constant-velocity model
 (``cdgps pipeline constant_velocity``); ``--phase-noise-auto`` runs the pipeline with ``[gnss.displacement]
-phase_noise = "auto"`` (the per-epoch states' phase variances scaled to the single-epoch residuals);
+phase_noise = "auto"`` (the per-epoch states' phase variances scaled to the single-epoch residuals); ``--multipath-auto``
+with ``multipath = "auto"`` (Gauss–Markov phase multipath states, session 35);
 ``--sweep`` adds the random-walk σ sweep (:func:`rw_sigma_sweep`) to the existing JSON.
 """
 
@@ -180,6 +181,7 @@ def run_pipeline(ds, rover: Path, signals, tmp: Path, model: str = "random_walk"
         f"sigma_m_per_sqrt_s = {RW_SIGMA}", *([f"accel_sigma_m_per_s_per_sqrt_s = {CV_ACCEL}"]
                                               if model == "constant_velocity" else []),
         *(['phase_noise = "auto"'] if "--phase-noise-auto" in sys.argv else []),
+        *(['multipath = "auto"'] if "--multipath-auto" in sys.argv else []),
         "", '[gnss.antennas."base"]', f'{kind} = "{ds["base"]}"',
         f"position_ecef_m = [{', '.join(map(str, ds['base_xyz']))}]", "", '[gnss.antennas."rover"]', f'rinex = "{rover}"', ""]))
     _run([CDGPS, "-q", "ingest", "--config", cfg, "-o", tmp / "run.mcap"])
@@ -289,6 +291,7 @@ def main() -> None:
                        "load_average_1min_at_start": round(os.getloadavg()[0], 2)},
            "rw_sigma_m_per_sqrt_s": RW_SIGMA, "vibrations": [list(v[:2]) + [list(v[2])] for v in VIBRATIONS],
            "phase_noise": "auto" if "--phase-noise-auto" in sys.argv else "model",
+           "multipath": "auto" if "--multipath-auto" in sys.argv else "off",
            "criteria": "amplitude within 10 %, frequency within 1 %, from >= 95 % of the rover's epochs",
            "cases": []}
     t_start = time.perf_counter()

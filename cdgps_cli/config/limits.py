@@ -102,6 +102,10 @@ CONFIG_BOUNDS: dict[str, Bound] = {
 #: (cdgps_cli.measurement.multipath.fit_autocovariance): σ and τ are clamped to these
 AUTO_MULTIPATH_SIGMA = Bound(5e-4, 0.1, "m")
 AUTO_MULTIPATH_TAU = Bound(1.0, 600.0, "s")
+#: a GNSS run config's ``[gnss.displacement] multipath_sigma_m`` (a carrier's multipath stays within a quarter of its
+#: wavelength, 5 cm at L1) and ``multipath_time_constant_s`` (the structure config's range)
+GNSS_MULTIPATH_SIGMA = Bound(0.0, 0.1, "m", lo_open=True)
+GNSS_MULTIPATH_TAU = CONFIG_BOUNDS["model.multipath_time_constant_s"]
 
 #: command-line options, by Python parameter name (the same bound wherever the option appears)
 OPTION_BOUNDS: dict[str, Bound] = {

@@ -18,7 +18,7 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 
-from cdgps_cli.config.limits import CONFIG_BOUNDS, MASK_DEG, Bound
+from cdgps_cli.config.limits import CONFIG_BOUNDS, GNSS_MULTIPATH_SIGMA, GNSS_MULTIPATH_TAU, MASK_DEG, Bound
 from cdgps_cli.config.options import GNSS_DEFAULTS
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
 
@@ -473,10 +473,12 @@ GNSS_TABLES: dict[str, dict[str, Field]] = {
                           "multipath state per satellite and signal, its sigma and time constant fitted to the "
                           "single-epoch solutions' DD phase residuals (\"auto\") or given (\"model\": "
                           "multipath_sigma_m, multipath_time_constant_s)", default=GNSS_DEFAULTS["multipath"]),
-        "multipath_sigma_m": _key(_POS, "multipath = \"model\": the stationary sigma of each satellite's single-"
-                                        "difference phase multipath, m", sign="positive"),
-        "multipath_time_constant_s": _key(_POS, "multipath = \"model\": its correlation time, s (default 30)",
-                                          sign="positive"),
+        "multipath_sigma_m": _key(_bound_schema(GNSS_MULTIPATH_SIGMA), "multipath = \"model\": the stationary sigma "
+                                  "of each satellite's single-difference phase multipath, m",
+                                  expect=f"a multipath sigma in {GNSS_MULTIPATH_SIGMA.text()}"),
+        "multipath_time_constant_s": _key(_bound_schema(GNSS_MULTIPATH_TAU), "multipath = \"model\": its correlation "
+                                          "time, s (default 30)",
+                                          expect=f"a correlation time in {GNSS_MULTIPATH_TAU.text()}"),
     },
 }
 

@@ -1341,7 +1341,8 @@ def _rover_model(w: dict, ptr: np.ndarray, idx, n: int, groups, model: str, cfg,
     states = mp is not None and "sigma_m" in mp
     if states:
         from cdgps_cli.pipeline.gnss_multipath import state_columns  # noqa: PLC0415
-        col, n_gm = state_columns(d, use)
+        col, n_gm = state_columns(d, use, mp["time_constant_s"])
+        mp["states"] = n_gm                     # (said in the rover's summary)
     var = w["var_ph"] * mp["white_factor"] if states and mp["white_factor"] != 1.0 else w["var_ph"]
     obs = []
     for u, ref in groups:
@@ -1400,7 +1401,7 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
     fixed_any = n_fixed_with_glonass(res["ambiguities"]) > 0
     use = known[w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
     c, dof, has, groups = _epoch_information(w, use)
-    mp = None if model == "static" else multipath_settings(cfg, w, use)
+    mp = None if model == "static" else multipath_settings(cfg, w, use, _data_factor(cfg, w))
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
     track = None
     if model == "static":
@@ -1421,6 +1422,15 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)
     return track, groups, int(np.sum(~has)), mp
+
+
+def _data_factor(cfg, w: dict) -> float:
+    """The scale of the phase variances the data show that ``w["var_ph"]`` does not hold yet: 1 when ``phase_noise =
+    "auto"`` scaled them, else the single-epoch solutions' unit variance (:func:`phase_variance_factor`) for
+    ``multipath = "auto"`` to split."""
+    if cfg.multipath != "auto" or cfg.phase_noise == "auto":
+        return 1.0
+    return phase_variance_factor(w.get("kinematic"))["factor"]
 
 
 def _residual_inputs(w: dict, groups) -> SimpleNamespace:

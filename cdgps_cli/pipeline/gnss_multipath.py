@@ -34,28 +34,43 @@ from cdgps_cli.estimation.baseline import known_phase_blocks
 __all__ = ["single_epoch_dd_residuals", "multipath_settings", "multipath_note", "state_columns", "OnColumns"]
 
 
-def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
-    """The DD phase residuals of every epoch solved alone: each epoch's displacement from its known DD phases (rows
-    ``use``; every signal group, weighted as the solver weights them), then each DD's residual at it.
+#: the fewest degrees of freedom (DDs − 3) of an epoch whose single-epoch residuals enter the fit: with 3 DDs they
+#: are 0 by construction, with 4 one number shared by all (a 45° mask left 941 of 1200 such epochs, τ fitted 20 s
+#: instead of 57 s)
+MIN_FIT_DOF = 2
+#: a satellite's multipath state is given to another satellite only this many time constants after its last DD:
+#: the Gauss–Markov process has forgotten it by then (correlation exp(−10) ≈ 5e-5), so the state count follows the
+#: satellites in view, not every satellite of the record
+FORGET_TIME_CONSTANTS = 10.0
 
-    Returns (residual (n_epochs, C) m, NaN where the pair is not seen or the epoch has no solution; the bias segment
+
+def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, float]:
+    """The DD phase residuals of every epoch solved alone: each epoch's displacement from its known DD phases (rows
+    ``use``; every signal group, weighted as the solver weights them), then each DD's residual at it.  Epochs with
+    fewer than :data:`MIN_FIT_DOF` degrees of freedom are left out.
+
+    Returns (residual (n_epochs, C) m, NaN where the pair is not seen or the epoch is left out; the bias segment
     (n_epochs, C), all 0: the residuals carry no ambiguity; the C channel keys (group, reference satellite,
-    satellite))."""
+    satellite); the mean over those residuals of their two rows' SD variances' mean (var_i + var_ref)/2, m² (NaN:
+    none))."""
     d = w["data"]
     n_ep = d.t_label.size
     blocks, _ = known_phase_blocks(d, w["var_ph"], w["refs_ph"], w["blocks_ph"], use)
     nmat, rhs = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3))
+    n_dd = np.zeros(n_ep, dtype=np.int64)
     for rows, p in blocks:
         gk, rk = w["g"][rows], w["r_ph"][rows]
         ep = d.epoch[rows[:, 0]]
         pg = p @ gk
         nmat[ep] += np.swapaxes(gk, 1, 2) @ pg
         rhs[ep] += (np.swapaxes(pg, 1, 2) @ rk[:, :, None])[:, :, 0]
-    solved = np.linalg.matrix_rank(nmat) == 3
+        n_dd[ep] += rows.shape[1] - 1
+    solved = (n_dd - 3 >= MIN_FIT_DOF) & (np.linalg.matrix_rank(nmat) == 3)
     dx = np.zeros((n_ep, 3))
     dx[solved] = np.linalg.solve(nmat[solved], rhs[solved][:, :, None])[:, :, 0]
     group = getattr(d, "group", None)
-    keys, vals, eps = [], [], []
+    var = np.asarray(w["var_ph"], dtype=np.float64)
+    keys, vals, eps, pair_var = [], [], [], []
     for rows, p in blocks:
         ep = d.epoch[rows[:, 0]]
         ok = solved[ep]
@@ -67,20 +82,27 @@ def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.
                               np.repeat(d.sat[rows[:, 0]], rows.shape[1] - 1), d.sat[others]], axis=1))
         vals.append((e[:, 1:] - e[:, :1]).ravel())
         eps.append(np.repeat(ep, rows.shape[1] - 1))
+        pair_var.append((0.5 * (var[rows[:, 1:]] + var[rows[:, :1]])).ravel())
     if not keys or not sum(k.shape[0] for k in keys):
-        return np.full((n_ep, 0), np.nan), np.zeros((n_ep, 0), dtype=np.int64), []
+        return np.full((n_ep, 0), np.nan), np.zeros((n_ep, 0), dtype=np.int64), [], float("nan")
     uniq, col = np.unique(np.concatenate(keys), axis=0, return_inverse=True)
     resid = np.full((n_ep, uniq.shape[0]), np.nan)
     resid[np.concatenate(eps), col.ravel()] = np.concatenate(vals)
-    return resid, np.zeros(resid.shape, dtype=np.int64), [tuple(int(v) for v in k) for k in uniq]
+    return (resid, np.zeros(resid.shape, dtype=np.int64), [tuple(int(v) for v in k) for k in uniq],
+            float(np.mean(np.concatenate(pair_var))))
 
 
-def multipath_settings(cfg, w: dict, use: np.ndarray) -> dict | None:
+def multipath_settings(cfg, w: dict, use: np.ndarray, data_factor: float = 1.0) -> dict | None:
     """The multipath states of one rover's window under ``cfg`` (a :class:`~cdgps_cli.config.structure.GnssConfig`;
     ``w`` its baseline work, ``use`` its rows of known ambiguity): None with ``multipath = "off"``; else a dict
     (JSON-ready) with ``mode``, and when states are added ``sigma_m``, ``time_constant_s`` and ``white_factor`` (what
     the white phase variances are multiplied by); with ``"auto"`` also the fit (``fit``: what
-    :func:`~cdgps_cli.measurement.multipath.fit_autocovariance` found) and ``detected`` (False: no states)."""
+    :func:`~cdgps_cli.measurement.multipath.fit_autocovariance` found) and ``detected`` (False: no states).
+
+    ``"auto"`` splits the phase variance the data show: ``data_factor`` × ``w["var_ph"]`` (the unit variance of the
+    single-epoch solutions when ``phase_noise = "model"`` left the variances as modelled; 1 when they are scaled
+    already), its correlated share f from the fit: σ² = f × the mean SD variance of the fitted DDs' rows, the white
+    variances × data_factor × (1 − f)."""
     if cfg.multipath == "off":
         return None
     if cfg.multipath == "model":
@@ -88,17 +110,18 @@ def multipath_settings(cfg, w: dict, use: np.ndarray) -> dict | None:
                 "time_constant_s": float(cfg.multipath_time_constant_s), "white_factor": 1.0}
     from cdgps_cli.measurement.multipath import fit_autocovariance  # noqa: PLC0415
 
-    resid, seg, keys = single_epoch_dd_residuals(w, use)
+    resid, seg, keys, mean_var = single_epoch_dd_residuals(w, use)
     fit = fit_autocovariance(resid, seg, float(w["data"].interval_s)) if keys else None
     if fit is None or not fit["detected"]:
         why = "no DD series long enough" if fit is None else "no time correlation detected (Ljung-Box)"
         return {"mode": "auto", "detected": False, "why": why, **({"fit": _fit_echo(fit)} if fit else {})}
     v_mp, v_w = fit["raw_sigma_m"] ** 2, fit["white_sigma_m"] ** 2
     share = v_mp / (v_mp + v_w)
-    var = np.asarray(w["var_ph"])[use]
-    return {"mode": "auto", "detected": True, "sigma_m": float(np.sqrt(share * np.median(var))),
-            "time_constant_s": float(fit["time_constant_s"]), "white_factor": float(1.0 - share),
-            "correlated_share": float(share), "fit": _fit_echo(fit)}
+    total = float(data_factor) * mean_var
+    return {"mode": "auto", "detected": True, "sigma_m": float(np.sqrt(share * total)),
+            "time_constant_s": float(fit["time_constant_s"]), "white_factor": float(data_factor * (1.0 - share)),
+            "correlated_share": float(share), "sd_phase_sigma_m": float(np.sqrt(total)),
+            "data_factor": float(data_factor), "fit": _fit_echo(fit)}
 
 
 def multipath_note(rover: str, mp: dict) -> str:
@@ -118,16 +141,37 @@ def _fit_echo(fit: dict) -> dict:
             "ljung_box_limit": fit["ljung_box_limit"], "runs": fit["runs"]}
 
 
-def state_columns(d, use: np.ndarray) -> tuple[np.ndarray, int]:
-    """Each SD row's multipath state: one per (signal group, satellite) among the rows ``use``, numbered in that
-    order; (column (N,) int, −1 for the other rows; the number of states)."""
+def state_columns(d, use: np.ndarray, tau_s: float) -> tuple[np.ndarray, int]:
+    """Each SD row's multipath state: one per arc of a (signal group, satellite) among the rows ``use`` that form a DD
+    (another usable row of the group at the epoch), an arc ending where the satellite's DDs stop for more than
+    :data:`FORGET_TIME_CONSTANTS` × ``tau_s``; a state is taken again by a later arc once that long has passed after
+    its arc (the earliest free one; else a new state).  Returns (column (N,) int, −1 for the other rows; the number
+    of states: the most arcs at once, not every satellite of the record)."""
     group = getattr(d, "group", None)
     g = np.zeros(d.sat.size, dtype=np.int64) if group is None else np.asarray(group, dtype=np.int64)
+    n_groups = int(g.max(initial=0)) + 1
+    count = np.zeros((d.t_label.size, n_groups), dtype=np.int64)
+    np.add.at(count, (d.epoch[use], g[use]), 1)
+    in_dd = use & (count[d.epoch, g] >= 2)
     key = g * (int(d.sat.max(initial=0)) + 1) + d.sat
-    uniq, inv = np.unique(key[use], return_inverse=True)
+    t = np.asarray(d.t_label, dtype=np.float64)[d.epoch]
+    gap = FORGET_TIME_CONSTANTS * float(tau_s)
+    arcs = []                                        # (start, end, rows)
+    for k in np.unique(key[in_dd]):
+        rows = np.flatnonzero(in_dd & (key == k))
+        rows = rows[np.argsort(t[rows], kind="stable")]
+        cut = np.flatnonzero(np.diff(t[rows]) > gap) + 1
+        arcs += [(float(t[r[0]]), float(t[r[-1]]), r) for r in np.split(rows, cut)]
     col = np.full(d.sat.size, -1, dtype=np.int64)
-    col[use] = inv.ravel()
-    return col, int(uniq.size)
+    free_at = []                                     # per state: when its last arc's process is forgotten
+    for start, end, rows in sorted(arcs, key=lambda a: (a[0], int(a[2][0]))):
+        ready = [c for c, f in enumerate(free_at) if f <= start]
+        c = min(ready, key=lambda c: (free_at[c], c)) if ready else len(free_at)
+        if c == len(free_at):
+            free_at.append(0.0)
+        free_at[c] = end + gap
+        col[rows] = c
+    return col, len(free_at)
 
 
 class OnColumns:

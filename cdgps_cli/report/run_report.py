@@ -273,6 +273,33 @@ def _nis_side_text(nis_per_dof: float, lo: float) -> str:
     return "; above it: the model or its noise misses something in these data, and the σ shown are too small"
 
 
+def _rover_summaries(states) -> dict:
+    """A GNSS STATES' rover summaries (``rovers`` metadata), the entries that are tables; {} elsewhere."""
+    try:
+        rovers = json.loads(states.metadata.get("rovers") or "{}")
+    except (ValueError, TypeError):
+        return {}
+    return {k: v for k, v in rovers.items() if isinstance(v, dict)} if isinstance(rovers, dict) else {}
+
+
+def _multipath_text(states) -> str:
+    """Each rover's Gauss–Markov phase multipath states as the STATES' rover summary records them (``multipath``:
+    pipeline/gnss_multipath.py), or "" when no rover has the key (``multipath = "off"``)."""
+    parts = []
+    for name, r in sorted(_rover_summaries(states).items()):
+        mp = r.get("multipath")
+        if not isinstance(mp, dict):
+            continue
+        if "sigma_m" not in mp:
+            parts.append(f"{name}: {mp.get('mode', '?')}, none ({mp.get('why', '?')}; the phase errors taken as white)")
+            continue
+        how = (f", {100 * mp['correlated_share']:.0f} % of the single-epoch DD residuals' variance correlated, the white "
+               f"variances × {mp['white_factor']:.3g}" if "correlated_share" in mp else ", given")
+        parts.append(f"{name}: {mp.get('mode', '?')}, one Gauss-Markov state per satellite and signal, σ "
+                     f"{1e3 * mp['sigma_m']:.2f} mm, τ {mp['time_constant_s']:.3g} s{how}")
+    return "; ".join(parts)
+
+
 def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> None:
     rows = [["epochs", f"{scan.n_epochs} ({_span_text(scan)}, every {scan.period_s:g} s)"],
             ["config", f"{states.config_name} (sha256 {str(states.config_sha256)[:16]}…)"]]
@@ -293,6 +320,9 @@ def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> 
         rows.append([f"NEES mean (dof {ne['dof']}) vs the 95 % interval of one epoch",
                      f"{ne['mean']:.2f} in [{lo:.2f}, {hi:.2f}]; {100 * ne['fraction_in_interval95']:.1f} % of "
                      f"{ne['epochs']} epochs inside"])
+    mp = _multipath_text(states)
+    if mp:
+        rows.append(["phase multipath states ([gnss.displacement] multipath)", mp])
     init = states.init or {}
     if "n_fixed" in init:
         total = init.get("n_estimated") or len(init.get("biases", []))
@@ -421,13 +451,9 @@ def _fix_text(states) -> str:
 
 def _window_fix_text(states) -> str:
     """Each window's integers per rover of a STATES made from several INITs (``rovers.<r>.windows``), else ""."""
-    try:
-        rovers = json.loads(states.metadata.get("rovers") or "{}")
-    except (ValueError, TypeError):
-        return ""
     parts = []
-    for name, r in sorted((rovers if isinstance(rovers, dict) else {}).items()):
-        wins = r.get("windows") if isinstance(r, dict) else None
+    for name, r in sorted(_rover_summaries(states).items()):
+        wins = r.get("windows")
         if isinstance(wins, list) and len(wins) > 1:
             each = ", ".join(f"{Path(str(w.get('init', '?'))).name} {w.get('solution', '?')} "
                              f"({w.get('n_fixed', '?')} of {w.get('n_estimated', '?')})" for w in wins if isinstance(w, dict))

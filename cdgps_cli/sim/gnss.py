@@ -397,10 +397,13 @@ def _simulate_pair(run: _PairRun, nav, disp: np.ndarray, offsets: np.ndarray, ph
 
 
 def _check_multipath(sigma_m: float, tau_s: float) -> None:
-    if not (math.isfinite(sigma_m) and sigma_m >= 0):
-        raise CdgpsError(f"--multipath-m must be >= 0 (m), got {sigma_m!r}")
-    if not (math.isfinite(tau_s) and tau_s > 0):
-        raise CdgpsError(f"--multipath-tau-s must be a positive number of seconds, got {tau_s!r}")
+    """--multipath-m: 0 (none) or the run config's range; --multipath-tau-s: the run config's range."""
+    from cdgps_cli.config.limits import GNSS_MULTIPATH_SIGMA, GNSS_MULTIPATH_TAU  # noqa: PLC0415
+
+    if not (math.isfinite(sigma_m) and (sigma_m == 0 or GNSS_MULTIPATH_SIGMA.contains(sigma_m))):
+        raise CdgpsError(f"--multipath-m must be 0 (none) or in {GNSS_MULTIPATH_SIGMA.text()}, got {sigma_m!r}")
+    if not (math.isfinite(tau_s) and GNSS_MULTIPATH_TAU.contains(tau_s)):
+        raise CdgpsError(f"--multipath-tau-s must be in {GNSS_MULTIPATH_TAU.text()}, got {tau_s!r}")
 
 
 def rover_phase_multipath(obs: pd.DataFrame, sigma_m: float, tau_s: float, seed: int) -> pd.DataFrame:
@@ -420,10 +423,10 @@ def rover_phase_multipath(obs: pd.DataFrame, sigma_m: float, tau_s: float, seed:
         w = gen.standard_normal(rows.size)
         dt = np.diff(t[rows])
         m = np.empty(rows.size)
-        m[0] = sigma_m * w[0]
+        m[0] = sigma_m * w[0]               # (a satellite seen once: that draw alone)
         # runs of one spacing are one linear recursion each (lfilter), carried on from the run before
         cuts = np.flatnonzero(np.diff(dt) != 0) + 1
-        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, dt.size]):
+        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, dt.size]) if dt.size else ():
             a = math.exp(-dt[lo] / tau_s)
             drive = sigma_m * math.sqrt(-math.expm1(-2.0 * dt[lo] / tau_s)) * w[lo + 1:hi + 1]
             m[lo + 1:hi + 1], _ = lfilter([1.0], [1.0, -a], drive, zi=[a * m[lo]])

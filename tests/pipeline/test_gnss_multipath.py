@@ -94,8 +94,10 @@ def _with(text: str, mode: str) -> str:
 @pytest.fixture(scope="module")
 def multipath_rover(tmp_path_factory):
     d = tmp_path_factory.mktemp("mp")
-    r = run_cli("-q", "simulate-gnss", "--duration", "1200", "--seed", "2", "--phase-noise-m", "0.001",
-                "--random-walk", "0.001", "--multipath-m", "0.005", "--multipath-tau-s", "40", "-o", d)
+    # white noise of the estimator's elevation model (σ² = a² + b²/sin²el per receiver: 4–12 mm per SD) beside the
+    # multipath: the split of an elevation-dependent variance is what the fit's σ depends on
+    r = run_cli("-q", "simulate-gnss", "--duration", "1200", "--seed", "2", "--random-walk", "0.001",
+                "--multipath-m", "0.005", "--multipath-tau-s", "40", "-o", d)
     assert r.exit_code == 0, r.output
     truth = json.loads((d / "truth.json").read_text())
     assert truth["phase_multipath"]["sigma_m"] == 0.005 and truth["phase_multipath"]["time_constant_s"] == 40.0
@@ -110,8 +112,10 @@ def test_auto_multipath_states_make_the_sigma_honest_where_white_errors_do_not(m
     assert 0.7 < nees["auto"] < 1.6
     mp = got["auto"][0]["rovers"]["rover"]["multipath"]
     assert mp["mode"] == "auto" and mp["detected"]
-    assert 0.0035 < mp["sigma_m"] < 0.008 and 20.0 < mp["time_constant_s"] < 80.0
-    assert 0.5 < mp["correlated_share"] < 1.0 and mp["white_factor"] == pytest.approx(1 - mp["correlated_share"])
+    assert 0.004 < mp["sigma_m"] < 0.0065 and 20.0 < mp["time_constant_s"] < 80.0      # (simulated: 5 mm, 40 s)
+    assert 0.1 < mp["correlated_share"] < 0.6 and mp["white_factor"] == pytest.approx(1 - mp["correlated_share"])
+    assert mp["sigma_m"] ** 2 == pytest.approx(mp["correlated_share"] * mp["sd_phase_sigma_m"] ** 2)
+    assert 6 <= mp["states"] <= 16                       # GPS L1 over 20 minutes: the satellites seen
     assert "multipath" not in got["off"][0]["rovers"]["rover"]
     assert any("multipath auto: a Gauss-Markov phase state" in n for n in got["auto"][0]["notes"])
 
@@ -136,7 +140,10 @@ def test_auto_finds_no_correlation_in_white_errors_and_leaves_the_states_alone(t
     ('multipath = "auto"', 'gnss.displacement.multipath: \'auto\' is only used with model = "random_walk"'),
     ('model = "random_walk"\nmultipath = "model"', "gnss.displacement.multipath_sigma_m: needed with"),
     ('model = "random_walk"\nmultipath_sigma_m = 0.005', 'multipath_sigma_m: only used with multipath = "model"'),
-    ('model = "random_walk"\nmultipath = "sometimes"', "gnss.displacement.multipath"),
+    ('model = "random_walk"\nmultipath = "sometimes"', "gnss.displacement.multipath: expected one of"),
+    ('model = "random_walk"\nmultipath = "model"\nmultipath_sigma_m = 1e300', "a multipath sigma in (0, 0.1] m"),
+    ('model = "random_walk"\nmultipath = "model"\nmultipath_sigma_m = 0.01\nmultipath_time_constant_s = 1e-6',
+     "a correlation time in [0.001, 1e+09] s"),
 ])
 def test_config_rules(tmp_path, extra, complaint):
     from cdgps_cli.config.structure import load_gnss_config
@@ -164,7 +171,111 @@ def test_model_mode_takes_the_given_sigma_and_several_inits_are_refused(multipat
     r = run_cli("-q", "estimate", d / "run_m.mcap", "--init", d / "w0.json", "-o", d / "st_m.mcap", "--json")
     assert r.exit_code == 0, r.output
     mp = json.loads(r.stdout)["rovers"]["rover"]["multipath"]
-    assert mp == {"mode": "model", "sigma_m": 0.005, "time_constant_s": 40.0, "white_factor": 1.0}
+    n = mp.pop("states")
+    assert mp == {"mode": "model", "sigma_m": 0.005, "time_constant_s": 40.0, "white_factor": 1.0} and 6 <= n <= 16
     r = run_cli("estimate", d / "run_m.mcap", "--init", d / "w0.json", "--init", d / "w1.json", "-o", d / "st2.mcap")
     assert r.exit_code == 2 and "several INITs" in r.output and "Traceback" not in r.output
     assert not (d / "st2.mcap").exists()
+
+
+def test_a_state_per_arc_taken_again_once_the_process_has_forgotten():
+    """Arcs of one (group, satellite) split where its DDs stop for more than 10 τ; a later arc takes the state of one
+    that ended at least 10 τ before it; a row alone in its group at an epoch (no DD) gets no state."""
+    from types import SimpleNamespace
+
+    from cdgps_cli.pipeline.gnss_multipath import FORGET_TIME_CONSTANTS, state_columns
+
+    assert FORGET_TIME_CONSTANTS == 10.0
+    span = {0: (0, 99), 1: (0, 299), 2: (150, 299), 3: (120, 140), 4: (0, 299)}      # satellite: first, last epoch
+    rows = [(k, s) for k in range(300) for s, (a, b) in span.items() if a <= k <= b]
+    sat = np.array([s for _, s in rows])
+    group = np.where(sat == 4, 1, 0)          # satellite 4: the only one of its group, never in a DD
+    d = SimpleNamespace(sat=sat, epoch=np.array([k for k, _ in rows]), t_label=np.arange(300.0), group=group)
+    col, n = state_columns(d, np.ones(sat.size, dtype=bool), tau_s=5.0)             # 10 τ = 50 s
+    assert np.all(col[sat == 4] == -1)
+    # satellite 1 alone in its group from 100 to 119 s and from 141 to 149 s
+    alone = (sat == 1) & (((d.epoch >= 100) & (d.epoch < 120)) | ((d.epoch > 140) & (d.epoch < 150)))
+    assert np.all(col[alone] == -1) and np.all(col[(sat < 4) & ~alone] >= 0)
+    c = {s: set(col[(sat == s) & ~alone].tolist()) for s in range(4)}
+    assert all(len(v) == 1 for v in c.values())
+    # 0 ends at 99: satellite 3 (from 120) is within 50 s of it, satellite 2 (from 150) is not and takes its state
+    assert c[2] == c[0] and c[3] != c[0] and n == 3
+    col, n = state_columns(d, np.ones(sat.size, dtype=bool), tau_s=10.0)            # 100 s: no state taken again
+    assert n == 4
+    # a satellite away for more than 10 τ starts an arc of its own (here another state: the first is not free yet)
+    gap = ~((sat == 1) & (d.epoch >= 100) & (d.epoch < 200))
+    col, n = state_columns(d, gap, tau_s=5.0)
+    assert len(set(col[(sat == 1) & gap].tolist()) - {-1}) == 2
+
+
+def test_taking_a_forgotten_state_again_changes_the_filter_by_its_forgotten_correlation(monkeypatch):
+    """A hand-made pair where satellite 5 rises 30 s (15 τ) after satellite 0 set: with its state taken again the
+    filter's states and covariances are those with a state of its own, to the correlation left, exp(−15) ≈ 3e-7."""
+    from types import SimpleNamespace
+
+    import cdgps_cli.pipeline.gnss_multipath as gm
+
+    rng = np.random.default_rng(5)
+    seen = {0: (0, 29), 1: (0, 99), 2: (0, 99), 3: (0, 99), 4: (0, 99), 5: (60, 99)}
+    rows = [(k, s_) for k in range(100) for s_, (a, b) in seen.items() if a <= k <= b]
+    sat = np.array([s_ for _, s_ in rows])
+    epoch = np.array([k for k, _ in rows])
+    ptr = np.searchsorted(epoch, np.arange(101))
+    d = SimpleNamespace(sat=sat, epoch=epoch, t_label=np.arange(100.0), group=None)
+    g, r = rng.normal(size=(sat.size, 3)), rng.normal(scale=0.01, size=sat.size)
+    var_w = rng.uniform(1e-6, 4e-6, size=sat.size)
+    ref = ptr[:-1] + 1                                   # satellite 1 is every epoch's reference
+    out = {}
+    for forget in (10.0, 1e9):
+        monkeypatch.setattr(gm, "FORGET_TIME_CONSTANTS", forget)
+        col, n = gm.state_columns(d, np.ones(sat.size, dtype=bool), tau_s=2.0)
+        ob = SDObservations(r, var_w, ref, ambiguity_col=col, wavelength_m=1.0)
+        dd = SatelliteDDDisplacement(ptr, sat, [f"G{i:02d}" for i in range(6)], g, [ob], n_ambiguities=n)
+        meas, dyn, P0 = _dynamics_of(dd, "random_walk", 0.001, None, 0.5, (n, 0.006, 2.0))
+        fr = _forward(meas, dyn, d.t_label, np.zeros(dyn.n), P0)
+        out[forget] = (n, np.asarray(fr["x"])[:, :3], np.asarray(fr["P"])[:, :3, :3])
+    assert (out[10.0][0], out[1e9][0]) == (5, 6)
+    np.testing.assert_allclose(out[10.0][1], out[1e9][1], rtol=0, atol=1e-6 * np.sqrt(out[1e9][2][:, 0, 0]).min())
+    np.testing.assert_allclose(out[10.0][2], out[1e9][2], rtol=1e-6)
+
+
+def test_epochs_without_two_degrees_of_freedom_stay_out_of_the_fit(multipath_rover):
+    """An epoch with 3 DDs has residuals of exactly 0 after its own fit (and 4: one number): they are left out."""
+    from cdgps_cli.io.file_checks import read_init_json
+    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
+    from cdgps_cli.pipeline.gnss import _stations, init_window, solve_with_init_integers
+    from cdgps_cli.pipeline.gnss_multipath import single_epoch_dd_residuals
+
+    d, _ = multipath_rover
+    init, _ = read_init_json(d / "init_auto.json")
+    run = read_gnss_run(d / "run_auto.mcap", columns=SOLVER_COLUMNS, window=init_window(init))
+    _, w, _, _ = solve_with_init_integers(run, init, "rover", _stations(run))
+    use = w["known_seg"][w["seg"]]
+    resid, _, keys, mean_var = single_epoch_dd_residuals(w, use)
+    n_dd = np.sum(np.isfinite(resid), axis=1)
+    assert n_dd.max() > 5 and np.all((n_dd == 0) | (n_dd >= 5))
+    # keep only 4 satellites at every epoch (3 DDs): nothing is left to fit
+    d_ = w["data"]
+    four = np.zeros(d_.sat.size, dtype=bool)
+    for k in range(d_.t_label.size):
+        rows = np.flatnonzero((d_.epoch == k) & use)[:4]
+        four[rows] = True
+    resid4, _, _, _ = single_epoch_dd_residuals(w, use & four)
+    assert not np.isfinite(resid4).any()
+    assert 1e-6 < mean_var < 1e-3
+
+
+def test_the_run_report_says_what_multipath_states_the_estimate_had(multipath_rover, tmp_path):
+    import html
+    import re
+
+    d, got = multipath_rover
+    mp = got["auto"][0]["rovers"]["rover"]["multipath"]
+    pages = {}
+    for tag in ("auto", "off"):
+        r = run_cli("-q", "report", "run", d / f"states_{tag}.mcap", "-o", tmp_path / tag)
+        assert r.exit_code == 0, r.output
+        pages[tag] = re.sub(r"<[^>]+>", " ", html.unescape((tmp_path / tag / "index.html").read_text()))
+    assert (f"phase multipath states ([gnss.displacement] multipath)  rover: auto, one Gauss-Markov state per "
+            f"satellite and signal, σ {1e3 * mp['sigma_m']:.2f} mm, τ {mp['time_constant_s']:.3g} s") in pages["auto"]
+    assert "phase multipath states" not in pages["off"]

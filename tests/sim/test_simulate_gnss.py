@@ -253,6 +253,12 @@ def test_rover_phase_multipath_is_the_gauss_markov_process_it_claims():
         assert np.corrcoef(v[:, 0], v[:, 1])[0, 1] == pytest.approx(want, abs=0.05)
         assert np.std(v) * GPS_L1_WAVELENGTH_M == pytest.approx(0.005, rel=0.05)
     assert list(out.columns) == list(obs.columns) and obs["phase_l1_cycles"].eq(1e3).all()   # input not modified
+    # a satellite seen once (it rises at the last epoch): its one draw
+    one = rover_phase_multipath(pd.DataFrame({"time_gps_s": [0.0], "sat": ["G01"], "phase_l1_cycles": [0.0]}),
+                                0.005, 30.0, seed=1)
+    assert np.isfinite(one["phase_l1_cycles"]).all() and one["phase_l1_cycles"].iloc[0] != 0.0
+    with pytest.raises(CdgpsError, match="multipath-m must be 0 .none. or in .0, 0.1. m"):
+        rover_phase_multipath(obs, 0.5, 30.0, seed=3)
     with pytest.raises(CdgpsError, match="multipath-tau-s"):
         rover_phase_multipath(obs, 0.005, 0.0, seed=3)
     with pytest.raises(CdgpsError, match="multipath-m"):
