@@ -14,7 +14,8 @@ For each ``--hours`` H simulates a static pair at 10 Hz (``cdgps simulate-gnss -
                     (every window's INIT into one STATES, a window at a time; --smooth with a moving model)
 
 ``--model random_walk`` (or constant_velocity) ingests the pair with that displacement model (run-<model>.mcap,
-its INITs init-<model>-k.json), so that the joined estimate filters and smooths over the windows.
+its INITs init-<model>-k.json), so that the joined estimate filters and smooths over the windows; with
+``--multipath-sigma-m S`` also multipath states (``multipath = "model"``, σ S, τ 30 s; files run-<model>-mp.mcap …).
 
 and writes ``--out`` (JSON) with a markdown table: the whole record's init and estimate grow with it, a window's
 stay what a record of its length costs::
@@ -60,22 +61,26 @@ def _hourly_files(d: Path) -> Path:
     return cfg
 
 
-def _model_config(d: Path, model: str) -> str:
-    """The pair's config with ``[gnss.displacement] model`` set (config.toml itself for the simulator's static)."""
+def _model_config(d: Path, model: str, multipath_sigma_m: float | None = None) -> str:
+    """The pair's config with ``[gnss.displacement] model`` set (config.toml itself for the simulator's static), and
+    with ``multipath_sigma_m`` multipath states of that σ and τ 30 s (``multipath = "model"``)."""
     if model == "static":
         return "config.toml"
-    cfg = d / f"config-{model}.toml"
-    cfg.write_text((d / "config.toml").read_text().replace('model = "static"', f'model = "{model}"'))
+    mp = "" if multipath_sigma_m is None else (f'\nmultipath = "model"\nmultipath_sigma_m = {multipath_sigma_m!r}'
+                                               f'\nmultipath_time_constant_s = 30.0')
+    cfg = d / f"config-{model}{'-mp' if mp else ''}.toml"
+    cfg.write_text((d / "config.toml").read_text().replace('model = "static"', f'model = "{model}"{mp}'))
     return cfg.name
 
 
 def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: bool = True,
-         hourly_files: bool = False, model: str = "static") -> dict:
+         hourly_files: bool = False, model: str = "static", multipath_sigma_m: float | None = None) -> dict:
     d = simulated_pair(workdir / f"gnss10-{hours:g}h", hours, 10.0)
-    tag = "" if model == "static" else f"-{model}"
+    tag = ("" if model == "static" else f"-{model}") + ("" if multipath_sigma_m is None else "-mp")
     run, smooth = f"run{tag}.mcap", ([] if model == "static" else ["--smooth"])
-    rec: dict = {"hours": hours, "rate_hz": 10.0, "window_s": window_s, "model": model, "stages": {}, "windows": []}
-    steps = [("ingest", ["ingest", "--config", _model_config(d, model), "-o", run]),
+    rec: dict = {"hours": hours, "rate_hz": 10.0, "window_s": window_s, "model": model,
+                 "multipath_sigma_m": multipath_sigma_m, "stages": {}, "windows": []}
+    steps = [("ingest", ["ingest", "--config", _model_config(d, model, multipath_sigma_m), "-o", run]),
              ("info", ["info", "--json", run])]
     if whole:
         steps += [("init", ["init", run, "-o", f"init{tag}.json"]),
@@ -133,12 +138,15 @@ def main() -> None:
                     "info only: docs/benchmarks/gnss_ingest.json)")
     ap.add_argument("--model", choices=("static", "random_walk", "constant_velocity"), default="static",
                     help="the pair's [gnss.displacement] model (a moving one: estimate --smooth)")
+    ap.add_argument("--multipath-sigma-m", type=float, default=None,
+                    help="with a moving model: multipath states of this σ (multipath = \"model\", τ 30 s)")
     ap.add_argument("--workdir", type=Path, default=Path("/tmp/cdgps-gnss-windows"))
     ap.add_argument("--out", type=Path)
     a = ap.parse_args()
-    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows, a.hourly_files, a.model)
-               for h in a.hours]
-    result = {"pair": f"simulate-gnss --rate-hz 10 --slips 30 --seed 1 (GPS L1; displacement model {a.model})",
+    records = [pair(a.workdir, h, a.window_s, not a.no_whole, not a.no_windows, a.hourly_files, a.model,
+                    a.multipath_sigma_m) for h in a.hours]
+    mp = "" if a.multipath_sigma_m is None else f", multipath states σ {a.multipath_sigma_m:g} m, τ 30 s"
+    result = {"pair": f"simulate-gnss --rate-hz 10 --slips 30 --seed 1 (GPS L1; displacement model {a.model}{mp})",
               "machine": machine(), "python": platform.python_version(),
               "records": records, "table": table(records),
               "note": "peak RSS: /usr/bin/time maximum resident set size of each cdgps process; load_1min: the "

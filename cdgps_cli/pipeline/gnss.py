@@ -797,9 +797,6 @@ def _forward_window(win: EstimateWindow, smooth: bool, carried: dict, frames: di
     stations = _stations(run)
     _check_master_position(run)
     model = run.cfg.displacement
-    if spill is not None and run.cfg.multipath != "off" and model != "static":
-        raise CdgpsError(f"[gnss.displacement] multipath = {run.cfg.multipath!r} with several INITs: multipath states "
-                         f"are estimated over one window; give one INIT (or multipath = \"off\")")
     per, events, noise, mps = {}, [], {}, {}
     for r in run.rovers:
         say(f"baseline {run.master} → {r}: INIT's solution and integers, {model} states …")
@@ -892,34 +889,61 @@ def _track_arrays(passes: list, rover: str, hist) -> tuple:
     tracks = [p.tracks[rover] for p in passes]
     if len(tracks) == 1:
         return tracks[0].x, tracks[0].P
-    nx = tracks[0].cols.size
+    nx = max(tr.n_state for tr in tracks)         # (windows with fewer multipath states: the rest padded, 0 ± 1)
     n = sum(tr.t.size for tr in tracks)
     xf, pf = hist.empty((n, nx)), hist.empty((n, nx, nx))
     start = 0
     for p, tr in zip(passes, tracks):
         with _load(p.a.file) as z:
-            x = z[f"x:{rover}"]
-            xf[start:start + tr.t.size] = x if tr.shift is None else x + tr.shift
-            pf[start:start + tr.t.size] = z[f"P:{rover}"]
+            x, m, sl = z[f"x:{rover}"], tr.n_state, slice(start, start + tr.t.size)
+            xf[sl] = _padded_rows(x if tr.shift is None else x + _padded(tr.shift, m), nx)
+            pf[sl] = _padded_rows(z[f"P:{rover}"], nx)
         for arr in (xf, pf):
             hist.release(arr, start, start + tr.t.size)
         start += tr.t.size
     return xf, pf
 
 
+def _padded_rows(v: np.ndarray, n: int) -> np.ndarray:
+    """Per-epoch states (N, m) or covariances (N, m, m) with states m … n−1 added, decoupled, at 0 ± 1 (a window with
+    fewer multipath states than the widest, in the arrays all windows share)."""
+    m = v.shape[1]
+    if m == n:
+        return v
+    if v.ndim == 2:
+        out = np.zeros((v.shape[0], n))
+        out[:, :m] = v
+        return out
+    out = np.zeros((v.shape[0], n, n))
+    out[:, :m, :m] = v
+    i = np.arange(m, n)
+    out[:, i, i] = 1.0
+    return out
+
+
+def _padded_pair(A: np.ndarray, Q: np.ndarray, n: int) -> tuple:
+    """A transition (A (m, m′), Q (m, m)) on ``n`` states: the padded states (0 ± 1, :func:`_padded_rows`) are not
+    carried from the previous epoch's but given afresh (Q = 1), so they stay 0 ± 1 and apart from the others."""
+    Ap, Qp = np.zeros((n, n)), np.zeros((n, n))
+    Ap[:A.shape[0], :A.shape[1]] = A
+    Qp[:Q.shape[0], :Q.shape[0]] = Q
+    i = np.arange(A.shape[0], n)
+    Qp[i, i] = 1.0
+    return Ap, Qp
+
+
 def _joined_transitions(tracks: list) -> tuple:
     """The transitions into every epoch of the windows' tracks on one axis: each window's own, and into each later
-    window's first epoch the dynamics over the seam."""
+    window's first epoch the transition over the seam its forward filter took (padded to the widest window)."""
+    n = max(tr.n_state for tr in tracks)
     pairs, pair_of = [], []
     for k, tr in enumerate(tracks):
         tp, to = tr.transitions
         of = np.asarray(to, dtype=np.int64) + len(pairs)
-        pairs.extend(tp)
+        pairs.extend(_padded_pair(np.asarray(A, dtype=np.float64), np.asarray(Q, dtype=np.float64), n)
+                     if tr.n_state < n else (A, Q) for A, Q in tp)
         if k:
-            A, _, Q = tr.dyn.transition(float(tr.t[0] - tracks[k - 1].t[-1]))
-            n = tr.cols.size
-            pairs.append((np.eye(n) if A is None else np.asarray(A, dtype=np.float64),
-                          np.zeros((n, n)) if Q is None else np.asarray(Q, dtype=np.float64)))
+            pairs.append(_padded_pair(*tr.seam, n))
             of[0] = len(pairs) - 1
         pair_of.append(of)
     return pairs, np.concatenate(pair_of)
@@ -1061,8 +1085,8 @@ def _joined_summary(passes: list, windows: list) -> dict:
         n_kin = sum(n for n, _ in kin)          # the single-epoch scatter about each window's own static solution
         rms = ({c: math.sqrt(sum(n * v[c] ** 2 for n, v in kin) / n_kin) for c in "enu"} if n_kin else None)
         out[r] = dict(each[0], **tot, kinematic_rms_m=rms, kinematic_rms_pdop_le_max_m=None, windows=each)
-        out[r].pop("window", None)
-        out[r].pop("init", None)
+        for k in ("window", "init", "multipath"):        # (multipath: each window's own, under windows)
+            out[r].pop(k, None)
     return out
 
 
@@ -1075,7 +1099,22 @@ def _windows_noise_notes(passes: list) -> list:
         if f:
             out.append(f"{r}: phase_noise auto, each window its own factor: the phase variances scaled by "
                        f"{min(f):.3g} … {max(f):.3g} over its {len(f)} windows (rovers.{r}.windows[].phase_noise)")
+        mp = [p.summary_rovers[r]["multipath"] for p in passes if "multipath" in p.summary_rovers[r]]
+        if mp:
+            out.append(_windows_multipath_note(r, mp))
     return out
+
+
+def _windows_multipath_note(rover: str, mp: list) -> str:
+    """Multipath states over several windows, said once per rover: each window's own (fitted with ``"auto"``), the
+    states of a satellite two windows hold carried over their seam."""
+    on = [m for m in mp if "sigma_m" in m]
+    if not on:
+        return f"{rover}: multipath {mp[0]['mode']}: no multipath states in any of its {len(mp)} windows"
+    sig, tau = [1e3 * m["sigma_m"] for m in on], [m["time_constant_s"] for m in on]
+    return (f"{rover}: multipath {mp[0]['mode']}: Gauss-Markov phase states in {len(on)} of its {len(mp)} windows, each "
+            f"window its own (sigma {min(sig):.2f} … {max(sig):.2f} mm, tau {min(tau):.3g} … {max(tau):.3g} s; "
+            f"rovers.{rover}.windows[].multipath); the state of a satellite seen on both sides of a seam goes on over it")
 
 
 def _write_windows(passes: list, windows: list, out_path, smooth: bool, extra_options: dict | None, say) -> dict:
@@ -1351,13 +1390,21 @@ def _rover_model(w: dict, ptr: np.ndarray, idx, n: int, groups, model: str, cfg,
         obs.append(SDObservations(w["r_ph"], var, ref_all, usable=u, **(
             {"ambiguity_col": col, "wavelength_m": 1.0} if states else {})))
     dd = SatelliteDDDisplacement(ptr, d.sat, d.sat_names, w["g"], obs, n_ambiguities=n_gm if states else 0)
-    return _displacement_dynamics(dd, model, cfg, (n_gm, mp["sigma_m"], mp["time_constant_s"]) if states else None)
+    meas, dyn, P0 = _displacement_dynamics(dd, model, cfg, (n_gm, mp["sigma_m"], mp["time_constant_s"]) if states
+                                           else None)
+    if not states:
+        return meas, dyn, P0, ([], [])
+    from cdgps_cli.pipeline.gnss_multipath import column_occupants  # noqa: PLC0415
+    return meas, dyn, P0, column_occupants(d, col, n_gm)
 
 
 class _RoverTrack(NamedTuple):
-    """A moving rover's forward filter over one window: its columns in the states, the window's origin (its static
-    solution; zero velocities), the origin's offset from the first window's (None in the first window), the
-    filtered x (N, nx) about the window's origin and P, the transitions into each epoch, the axis and dynamics."""
+    """A moving rover's forward filter over one window: its columns in the states (its own: positions, velocities),
+    the window's origin (its static solution; zero velocities), the origin's offset from the first window's (None in
+    the first window), the filtered x (N, n_state) about the window's origin and P (its own states, then its
+    multipath states), the transitions into each epoch, the axis and dynamics, the number of states, the (signal,
+    satellite) each multipath state holds first and last, and the transition (A, Q) over the seam into its first
+    epoch (None in the first window; A rectangular when the windows' state counts differ)."""
 
     cols: np.ndarray
     origin: np.ndarray
@@ -1367,27 +1414,45 @@ class _RoverTrack(NamedTuple):
     transitions: tuple
     t: np.ndarray
     dyn: object
+    n_state: int
+    holds: tuple = ([], [])
+    seam: tuple | None = None
 
     def in_frame(self) -> np.ndarray:
         """x about the first window's origin (the frame every window's states are smoothed in)."""
-        return self.x if self.shift is None else self.x + self.shift
+        return self.x if self.shift is None else self.x + _padded(self.shift, self.x.shape[1])
 
     def last(self) -> tuple:
-        """(time, x about the first window's origin, P) of the last epoch: the next window's start."""
-        return float(self.t[-1]), self.in_frame()[-1], self.P[-1]
+        """(time, x about the first window's origin, P, the rover's own state count, the (signal, satellite) each
+        multipath state holds last) of the last epoch: the next window's start."""
+        return float(self.t[-1]), self.in_frame()[-1], self.P[-1], self.cols.size, self.holds[1]
 
 
-def _prior_from(carried: tuple | None, t0: float, dyn, P0: np.ndarray, shift: np.ndarray | None) -> tuple:
-    """The prior (x about this window's origin, P) at its first epoch ``t0``: x = 0 ± P0 for the first window; else
-    the previous window's last state (``carried``, about the first window's origin) predicted over the seam."""
+def _padded(v: np.ndarray, n: int) -> np.ndarray:
+    """``v`` with zeros after it to length ``n`` (an offset of the rover's own states, none of its multipath states)."""
+    out = np.zeros(n)
+    out[:v.size] = v
+    return out
+
+
+def _prior_from(carried: tuple | None, t0: float, dyn, P0: np.ndarray, shift: np.ndarray | None,
+                holds_first: list = ()) -> tuple:
+    """The prior (x about this window's origin, P) at its first epoch ``t0`` and the transition (A, Q) over the seam
+    (None for the first window): x = 0 ± P0 for the first window; else the previous window's last state
+    (``carried``, about the first window's origin) predicted over the seam
+    (:func:`~cdgps_cli.pipeline.gnss_multipath.seam_transition`: a multipath state of a satellite both windows hold
+    goes on, ``holds_first`` naming this window's)."""
     if carried is None:
-        return np.zeros(P0.shape[0]), P0
-    t_last, x_last, P_last = carried
-    A, _, Q = dyn.transition(float(t0 - t_last))
-    A = np.eye(P0.shape[0]) if A is None else np.asarray(A, dtype=np.float64)
-    Q = np.zeros_like(P0) if Q is None else np.asarray(Q, dtype=np.float64)
+        return np.zeros(P0.shape[0]), P0, None
+    from cdgps_cli.pipeline.gnss_multipath import seam_transition  # noqa: PLC0415
+    t_last, x_last, P_last, n_dyn, holds_last = carried
+    if len(holds_first) or len(holds_last):
+        A, Q = seam_transition(dyn, n_dyn, list(holds_last), list(holds_first), x_last.size, float(t0 - t_last))
+    else:
+        A, _, Q = dyn.transition(float(t0 - t_last))
+        A, Q = np.asarray(A, dtype=np.float64), np.asarray(Q, dtype=np.float64)
     x = A @ x_last
-    return (x if shift is None else x - shift), A @ P_last @ A.T + Q
+    return (x if shift is None else x - _padded(shift, x.size)), A @ P_last @ A.T + Q, (A, Q)
 
 
 def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg, res: dict, carried, frame):
@@ -1410,14 +1475,14 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
         nis = np.where(has, c, np.nan)
     else:
         ptr = _pointers_on_axis(d.ptr, idx, a.n)
-        meas, dyn, P0 = _rover_model(w, ptr, idx, a.n, groups, model, cfg, use, mp)
+        meas, dyn, P0, holds = _rover_model(w, ptr, idx, a.n, groups, model, cfg, use, mp)
         nx = 6 if model == "constant_velocity" else 3          # (the rover's own states; multipath states after)
         cols = np.r_[np.arange(sl.start, sl.stop), a.nq + np.arange(sl.start, sl.stop)][:nx]
         origin = np.r_[x_fin, np.zeros(nx - 3)]               # (the velocities' origin: 0)
         shift = None if carried is None else np.r_[x_fin - frame, np.zeros(nx - 3)]
-        x0, p0 = _prior_from(carried, float(a.t[0]), dyn, P0, shift)
+        x0, p0, seam = _prior_from(carried, float(a.t[0]), dyn, P0, shift, holds[0])
         fr = _forward(meas, dyn, a.t, x0, p0)
-        track = _RoverTrack(cols, origin, shift, fr["x"], fr["P"], fr["transitions"], a.t, dyn)
+        track = _RoverTrack(cols, origin, shift, fr["x"], fr["P"], fr["transitions"], a.t, dyn, P0.shape[0], holds, seam)
         nis = fr["nis"][idx]
     a.dof_tot[idx] += np.where(has, dof, 0)
     a.nis_sum[idx] += np.where(has, np.nan_to_num(nis), 0.0)

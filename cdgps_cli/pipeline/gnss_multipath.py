@@ -12,17 +12,21 @@ appended to the rover's states (:class:`~cdgps_cli.model.dynamics_models.WithGau
 satellite i against the reference j sees m_i − m_j beside the displacement
 (:class:`~cdgps_cli.measurement.dd_displacement.SatelliteDDDisplacement`'s ambiguity columns with λ = 1 m).
 
-``multipath = "auto"`` fits σ, τ and the white part from the data: every epoch is solved alone from its known DD
-phases (one position per epoch, every signal group), and the residual DD series of each (group, reference,
-satellite) pair go to the pooled autocovariance fit of :func:`cdgps_cli.measurement.multipath.fit_autocovariance`
-(a Gauss–Markov process plus white noise; Ljung–Box detection).  The fit gives the split of the variance into its
-correlated share f_mp = σ_mp² / (σ_mp² + σ_w²); the total is the phase variances as the rover's states use them
-(``phase_noise``), so the states' white variances are those × (1 − f_mp) and σ² = f_mp × their median.  Where no
-time correlation is detected the states are the white-noise ones, unchanged.  ``multipath = "model"`` takes σ and τ
-from the config and leaves the white variances as they are.
+``multipath = "auto"`` fits σ, τ and the white part from the data: every epoch with at least :data:`MIN_FIT_DOF`
+degrees of freedom is solved alone from its known DD phases (one position per epoch, every signal group), and the
+residual DD series of each (group, reference, satellite) pair go to the pooled autocovariance fit of
+:func:`cdgps_cli.measurement.multipath.fit_autocovariance` (a Gauss–Markov process plus white noise; Ljung–Box
+detection).  The fit gives the correlated share f of the variance; the total is the SD phase variances times the
+scale the data show (the single-epoch solutions' unit variance, whatever ``phase_noise`` says), so the white
+variances become × (1 − f) and σ² = f × the mean SD variance of the fitted DDs' rows.  Where no time correlation is
+detected the states are the white-noise ones, unchanged.  ``multipath = "model"`` takes σ and τ from the config and
+leaves the white variances as they are.
 
-Cost: the state grows by one per satellite and signal group seen in the window (GPS L1 over an hour: ≈ 12–16), and
-the smoother keeps the full covariance of every epoch; with several INITs (one STATES over windows) it is refused.
+A state is one arc of a (group, satellite) that forms DDs, and is taken again by a later arc once the process has
+forgotten the earlier one (:data:`FORGET_TIME_CONSTANTS`), so the state count follows the satellites in view
+(:func:`state_columns`).  With several INITs (one STATES over windows) each window has its own states, and a
+satellite's state goes on over a seam (:func:`seam_transition`).  The smoother keeps the full covariance of every
+epoch: memory grows with the state count.
 """
 
 from __future__ import annotations
@@ -31,7 +35,8 @@ import numpy as np
 
 from cdgps_cli.estimation.baseline import known_phase_blocks
 
-__all__ = ["single_epoch_dd_residuals", "multipath_settings", "multipath_note", "state_columns", "OnColumns"]
+__all__ = ["single_epoch_dd_residuals", "multipath_settings", "multipath_note", "state_columns", "column_occupants",
+           "seam_transition", "OnColumns"]
 
 
 #: the fewest degrees of freedom (DDs − 3) of an epoch whose single-epoch residuals enter the fit: with 3 DDs they
@@ -190,3 +195,41 @@ class OnColumns:
         full = np.zeros((H.shape[0], self.n_state))
         full[:, self.cols] = H
         return h, full
+
+
+def column_occupants(d, col: np.ndarray, n: int) -> tuple[list, list]:
+    """Which (signal, satellite) each of the ``n`` states holds first and last in the window (``col``:
+    :func:`state_columns`' rows → states), named so that another window's states can be matched to them (a window's
+    satellite and group indices are its own): two lists of ``(signal, satellite name)``."""
+    names = list(getattr(d, "group_names", ("",)) or ("",))
+    g = getattr(d, "group", None)
+    first, last = [None] * n, [None] * n
+    rows = np.flatnonzero(col >= 0)
+    rows = rows[np.argsort(d.epoch[rows], kind="stable")]
+    for r in rows:                      # (in time order: the last write of a state is its last occupant)
+        key = (names[int(g[r])] if g is not None else names[0], str(d.sat_names[int(d.sat[r])]))
+        c = int(col[r])
+        if first[c] is None:
+            first[c] = key
+        last[c] = key
+    return first, last
+
+
+def seam_transition(dyn, n_dyn: int, prev_last: list, next_first: list, n_prev: int, dt_s: float):
+    """(A (n_next, n_prev), Q (n_next, n_next)) from the last epoch of a window (its ``n_prev`` states: ``n_dyn`` of
+    the rover, then multipath states last held by ``prev_last``) to the first of the next (dynamics ``dyn`` over
+    ``dt_s``; multipath states first held by ``next_first``, none without them): the rover's own transition; a
+    multipath state of a (signal, satellite) the previous window held goes on as its Gauss–Markov process, any other
+    starts from its stationary prior."""
+    A_full, _, Q_full = dyn.transition(float(dt_s))
+    n_next = A_full.shape[0]
+    A, Q = np.zeros((n_next, n_prev)), np.zeros((n_next, n_next))
+    A[:n_dyn, :n_dyn], Q[:n_dyn, :n_dyn] = A_full[:n_dyn, :n_dyn], Q_full[:n_dyn, :n_dyn]
+    held = {k: n_dyn + i for i, k in enumerate(prev_last) if k is not None}
+    for j, key in enumerate(next_first):
+        c = n_dyn + j
+        if key in held:
+            A[c, held[key]], Q[c, c] = A_full[c, c], Q_full[c, c]
+        else:
+            Q[c, c] = dyn.sigma**2
+    return A, Q

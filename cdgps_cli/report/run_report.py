@@ -260,7 +260,7 @@ def _provenance_section(page: _Page, prov: dict, states, run) -> None:
                  f"<table class='prov'><tr><th>input</th><th>made by</th></tr>{stages}</table>")
 
 
-def _nis_side_text(nis_per_dof: float, lo: float) -> str:
+def _nis_side_text(nis_per_dof: float, lo: float, multipath_states: bool = False) -> str:
     """What a pooled NIS outside its bound says of the σ: below it, the measurement model's variances exceed the
     data's scatter (the σ are conservative: a geodetic receiver under the default 3 mm + 3 mm / sin el weights);
     above it, the model misses something (noise, motion, a wrong integer) and the σ are too small."""
@@ -269,7 +269,9 @@ def _nis_side_text(nis_per_dof: float, lo: float) -> str:
                 f"× less in σ; the weights: the INIT's options sigma_a_m, sigma_b_m, or [gnss.displacement] phase_noise "
                 f"= \"auto\"). That says nothing of errors correlated over minutes (multipath), which the NIS of each "
                 f"epoch cannot see: a static solution's σ from a long record, and a random walk's on a low-cost "
-                f"receiver, can be several times too small all the same")
+                f"receiver, can be several times too small all the same"
+                + ("; here the states carry multipath states (the row below), which model them" if multipath_states
+                   else ""))
     return "; above it: the model or its noise misses something in these data, and the σ shown are too small"
 
 
@@ -282,11 +284,27 @@ def _rover_summaries(states) -> dict:
     return {k: v for k, v in rovers.items() if isinstance(v, dict)} if isinstance(rovers, dict) else {}
 
 
+def _has_multipath_states(states) -> bool:
+    """Whether some rover's states (or some window's) carried multipath states."""
+    for r in _rover_summaries(states).values():
+        found = [r.get("multipath")] + [w.get("multipath") for w in r.get("windows") or [] if isinstance(w, dict)]
+        if any(isinstance(m, dict) and "sigma_m" in m for m in found):
+            return True
+    return False
+
+
 def _multipath_text(states) -> str:
     """Each rover's Gauss–Markov phase multipath states as the STATES' rover summary records them (``multipath``:
     pipeline/gnss_multipath.py), or "" when no rover has the key (``multipath = "off"``)."""
     parts = []
     for name, r in sorted(_rover_summaries(states).items()):
+        wins = [w.get("multipath") for w in r.get("windows") or [] if isinstance(w, dict)]
+        if any(isinstance(m, dict) and "sigma_m" in m for m in wins):
+            on = [m for m in wins if isinstance(m, dict) and "sigma_m" in m]
+            parts.append(f"{name}: {on[0].get('mode', '?')}, in {len(on)} of its {len(wins)} windows, each its own: σ "
+                         f"{1e3 * min(m['sigma_m'] for m in on):.2f} … {1e3 * max(m['sigma_m'] for m in on):.2f} mm, "
+                         f"τ {min(m['time_constant_s'] for m in on):.3g} … {max(m['time_constant_s'] for m in on):.3g} s")
+            continue
         mp = r.get("multipath")
         if not isinstance(mp, dict):
             continue
@@ -311,7 +329,7 @@ def _summary_section(page: _Page, data: dict, states, scan, spectra, static) -> 
         ok = lo <= ns["pooled_per_dof"] <= hi
         rows.append(["NIS per dof (pooled) vs its 95 % bound", f"{ns['pooled_per_dof']:.3f} in [{lo:.3f}, {hi:.3f}]: "
                      + ("consistent" if ok else f"outside (the bound pools {ns['epochs']} epochs as if independent)"
-                        + _nis_side_text(ns["pooled_per_dof"], lo))])
+                        + _nis_side_text(ns["pooled_per_dof"], lo, _has_multipath_states(states)))])
         rows.append(["epochs with NIS inside its 95 % χ² interval", f"{100 * ns['fraction_in_interval95']:.1f} % "
                      f"(expected 95 %) of {ns['epochs']}"])
     if scan.nees_stats:

@@ -158,24 +158,59 @@ def test_config_rules(tmp_path, extra, complaint):
     assert complaint in str(exc.value)
 
 
-def test_model_mode_takes_the_given_sigma_and_several_inits_are_refused(multipath_rover):
+def test_model_mode_takes_the_given_sigma_and_several_inits_join_as_the_whole_record(multipath_rover, monkeypatch):
+    """Two windows' INITs with multipath states give the whole record's states: each satellite's multipath state goes
+    on over the seam (a satellite both windows hold), the filter and smoother run over both windows."""
+    from cdgps_cli.io.states import States
+
     d, _ = multipath_rover
     text = (d / "config.toml").read_text().replace(
         'model = "random_walk"', 'model = "random_walk"\nmultipath = "model"\nmultipath_sigma_m = 0.005\n'
                                  'multipath_time_constant_s = 40', 1)
     (d / "m.toml").write_text(text)
     assert run_cli("-q", "ingest", "--config", d / "m.toml", "-o", d / "run_m.mcap").exit_code == 0
+    assert run_cli("-q", "init", d / "run_m.mcap", "-o", d / "whole_m.json").exit_code == 0
     for k, (s, n) in enumerate(((0, 600), (600, 600))):
         r = run_cli("-q", "init", d / "run_m.mcap", "--start", str(s), "--duration", str(n), "-o", d / f"w{k}.json")
         assert r.exit_code == 0, r.output
-    r = run_cli("-q", "estimate", d / "run_m.mcap", "--init", d / "w0.json", "-o", d / "st_m.mcap", "--json")
+    r = run_cli("-q", "estimate", d / "run_m.mcap", "--init", d / "whole_m.json", "--smooth", "-o", d / "st_m.mcap",
+                "--json")
     assert r.exit_code == 0, r.output
     mp = json.loads(r.stdout)["rovers"]["rover"]["multipath"]
     n = mp.pop("states")
     assert mp == {"mode": "model", "sigma_m": 0.005, "time_constant_s": 40.0, "white_factor": 1.0} and 6 <= n <= 16
-    r = run_cli("estimate", d / "run_m.mcap", "--init", d / "w0.json", "--init", d / "w1.json", "-o", d / "st2.mcap")
-    assert r.exit_code == 2 and "several INITs" in r.output and "Traceback" not in r.output
-    assert not (d / "st2.mcap").exists()
+    r = run_cli("-q", "estimate", d / "run_m.mcap", "--init", d / "w0.json", "--init", d / "w1.json", "--smooth",
+                "-o", d / "st2.mcap", "--json")
+    assert r.exit_code == 0, r.output
+    assert any("multipath model: Gauss-Markov phase states in 2 of its 2 windows" in n for n in json.loads(r.stdout)["notes"])
+    whole, two = States(d / "st_m.mcap"), States(d / "st2.mcap")
+    assert two.time_s.tobytes() == whole.time_s.tobytes()
+    assert np.max(np.abs(two.q - whole.q)) < 1e-6                       # (measured: 0.17 µm)
+    assert np.max(np.abs(two.sigma_q / whole.sigma_q - 1.0)) < 1e-8       # (1.3e-10)
+    rov = json.loads(two.metadata["rovers"])["rover"]
+    assert len({w_["multipath"]["states"] for w_ in rov["windows"]}) == 2  # (12 and 11: the narrower one padded)
+    assert "multipath" not in rov                                         # (each window's own, not the first's)
+    r = run_cli("-q", "report", "run", d / "st2.mcap", "-o", d / "page2")
+    assert r.exit_code == 0, r.output
+    import html
+    import re
+
+    from cdgps_cli.report.run_report import _nis_side_text
+
+    text = re.sub(r"<[^>]+>", " ", html.unescape((d / "page2" / "index.html").read_text()))
+    assert "rover: model, in 2 of its 2 windows, each its own: σ 5.00 … 5.00 mm, τ 40 … 40 s" in text
+    assert "multipath states" in _nis_side_text(0.5, 0.9, True) and "multipath states" not in _nis_side_text(0.5, 0.9)
+    # the control: every multipath state started afresh at the seam, as if the windows' satellites were others
+    import cdgps_cli.pipeline.gnss_multipath as gm
+
+    real = gm.seam_transition
+    monkeypatch.setattr(gm, "seam_transition", lambda dyn, n_dyn, last, first, n_prev, dt:
+                        real(dyn, n_dyn, [], first, n_prev, dt))
+    r = run_cli("-q", "estimate", d / "run_m.mcap", "--init", d / "w0.json", "--init", d / "w1.json", "--smooth",
+                "-o", d / "st3.mcap")
+    assert r.exit_code == 0, r.output
+    fresh = States(d / "st3.mcap")
+    assert np.max(np.abs(fresh.q - whole.q)) > 1e-4 and np.max(np.abs(fresh.sigma_q / whole.sigma_q - 1.0)) > 0.05
 
 
 def test_a_state_per_arc_taken_again_once_the_process_has_forgotten():
