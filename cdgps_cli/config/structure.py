@@ -1116,6 +1116,8 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
     if displacement != "static":
         out.append('# phase_noise = "auto"    # the per-epoch states\' phase variances scaled to the single-epoch '
                    'residuals (default "model": sigma_a_m, sigma_b_m)')
+        out.append('# multipath = "auto"    # Gauss-Markov phase multipath states per satellite, fitted to the data '
+                   '(low-cost receivers: honest sigma; default "off")')
     for an, (kind, path) in antennas.items():
         out += ["", f"[gnss.antennas.{_toml_str(an)}]"]
         if path is not None:
