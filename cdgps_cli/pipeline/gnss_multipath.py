@@ -47,6 +47,29 @@ MIN_FIT_DOF = 2
 #: the Gauss–Markov process has forgotten it by then (correlation exp(−10) ≈ 5e-5), so the state count follows the
 #: satellites in view, not every satellite of the record
 FORGET_TIME_CONSTANTS = 10.0
+#: the largest share of the phase variance given to the multipath states: the fit may find no white part at all
+#: (non-negative least squares at its bound: the F9P's 15 s log, 99.7 %), but a carrier phase always has some, and a
+#: DD covariance of zero cannot be factored; so the white σ stays at least 3 % of the total
+MAX_CORRELATED_SHARE = 0.999
+
+
+def _epoch_solutions(d, w: dict, blocks: list) -> tuple[np.ndarray, np.ndarray]:
+    """Each epoch's displacement from its known DD phases alone (``blocks``: every signal group's weight blocks),
+    (n_epochs, 3) m, and whether it was solved: at least :data:`MIN_FIT_DOF` degrees of freedom and full rank."""
+    n_ep = d.t_label.size
+    nmat, rhs = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3))
+    n_dd = np.zeros(n_ep, dtype=np.int64)
+    for rows, p in blocks:
+        gk, rk = w["g"][rows], w["r_ph"][rows]
+        ep = d.epoch[rows[:, 0]]
+        pg = p @ gk
+        nmat[ep] += np.swapaxes(gk, 1, 2) @ pg
+        rhs[ep] += (np.swapaxes(pg, 1, 2) @ rk[:, :, None])[:, :, 0]
+        n_dd[ep] += rows.shape[1] - 1
+    solved = (n_dd - 3 >= MIN_FIT_DOF) & (np.linalg.matrix_rank(nmat) == 3)
+    dx = np.zeros((n_ep, 3))
+    dx[solved] = np.linalg.solve(nmat[solved], rhs[solved][:, :, None])[:, :, 0]
+    return dx, solved
 
 
 def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, float]:
@@ -61,22 +84,11 @@ def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.
     d = w["data"]
     n_ep = d.t_label.size
     blocks, _ = known_phase_blocks(d, w["var_ph"], w["refs_ph"], w["blocks_ph"], use)
-    nmat, rhs = np.zeros((n_ep, 3, 3)), np.zeros((n_ep, 3))
-    n_dd = np.zeros(n_ep, dtype=np.int64)
-    for rows, p in blocks:
-        gk, rk = w["g"][rows], w["r_ph"][rows]
-        ep = d.epoch[rows[:, 0]]
-        pg = p @ gk
-        nmat[ep] += np.swapaxes(gk, 1, 2) @ pg
-        rhs[ep] += (np.swapaxes(pg, 1, 2) @ rk[:, :, None])[:, :, 0]
-        n_dd[ep] += rows.shape[1] - 1
-    solved = (n_dd - 3 >= MIN_FIT_DOF) & (np.linalg.matrix_rank(nmat) == 3)
-    dx = np.zeros((n_ep, 3))
-    dx[solved] = np.linalg.solve(nmat[solved], rhs[solved][:, :, None])[:, :, 0]
+    dx, solved = _epoch_solutions(d, w, blocks)
     group = getattr(d, "group", None)
     var = np.asarray(w["var_ph"], dtype=np.float64)
     keys, vals, eps, pair_var = [], [], [], []
-    for rows, p in blocks:
+    for rows, _ in blocks:
         ep = d.epoch[rows[:, 0]]
         ok = solved[ep]
         rows, ep = rows[ok], ep[ok]
@@ -121,7 +133,7 @@ def multipath_settings(cfg, w: dict, use: np.ndarray, data_factor: float = 1.0) 
         why = "no DD series long enough" if fit is None else "no time correlation detected (Ljung-Box)"
         return {"mode": "auto", "detected": False, "why": why, **({"fit": _fit_echo(fit)} if fit else {})}
     v_mp, v_w = fit["raw_sigma_m"] ** 2, fit["white_sigma_m"] ** 2
-    share = v_mp / (v_mp + v_w)
+    share = min(v_mp / (v_mp + v_w), MAX_CORRELATED_SHARE)
     total = float(data_factor) * mean_var
     return {"mode": "auto", "detected": True, "sigma_m": float(np.sqrt(share * total)),
             "time_constant_s": float(fit["time_constant_s"]), "white_factor": float(data_factor * (1.0 - share)),

@@ -314,3 +314,21 @@ def test_the_run_report_says_what_multipath_states_the_estimate_had(multipath_ro
     assert (f"phase multipath states ([gnss.displacement] multipath)  rover: auto, one Gauss-Markov state per "
             f"satellite and signal, σ {1e3 * mp['sigma_m']:.2f} mm, τ {mp['time_constant_s']:.3g} s") in pages["auto"]
     assert "phase multipath states" not in pages["off"]
+
+
+def test_a_fit_without_white_noise_leaves_the_phases_some(monkeypatch):
+    """The fit's non-negative least squares may give no white part at all; the white variances stay positive (a DD
+    covariance of zero cannot be factored): at most MAX_CORRELATED_SHARE of the variance goes to the multipath."""
+    from types import SimpleNamespace
+
+    import cdgps_cli.measurement.multipath as mm
+    import cdgps_cli.pipeline.gnss_multipath as gm
+
+    monkeypatch.setattr(gm, "single_epoch_dd_residuals", lambda w, use: (np.zeros((5, 1)), np.zeros((5, 1)), [(0,)], 4e-5))
+    monkeypatch.setattr(mm, "fit_autocovariance", lambda r, s, dt: {
+        "detected": True, "raw_sigma_m": 0.006, "white_sigma_m": 0.0, "time_constant_s": 100.0,
+        "raw_time_constant_s": 100.0, "ljung_box_q": 1e4, "ljung_box_limit": 50.0, "runs": 3})
+    cfg = SimpleNamespace(multipath="auto")
+    mp = gm.multipath_settings(cfg, {"data": SimpleNamespace(interval_s=1.0)}, np.ones(1, dtype=bool), 1.0)
+    assert mp["correlated_share"] == gm.MAX_CORRELATED_SHARE == 0.999
+    assert mp["white_factor"] == pytest.approx(1e-3) and mp["sigma_m"] == pytest.approx(np.sqrt(0.999 * 4e-5))
