@@ -1046,6 +1046,30 @@ def _toml_str(s: str) -> str:
     return '"' + str(s).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
+def _displacement_toml(displacement: str, sigma_m_per_sqrt_s, accel_sigma_m_per_s_per_sqrt_s) -> list[str]:
+    """The ``[gnss.displacement]`` table of :func:`gnss_config_toml`: the model, its process noise, and a moving
+    model's optional noise keys commented."""
+    out = ["", "[gnss.displacement]",
+           f"model = {_toml_str(displacement)}    # \"static\", \"random_walk\" or \"constant_velocity\" E/N/U "
+           f"displacement of each rover"]
+    if displacement != "static":
+        sig = sigma_m_per_sqrt_s if sigma_m_per_sqrt_s is not None else 0.001
+        sig_txt = repr(float(sig)) if np.isscalar(sig) else "[" + ", ".join(repr(float(x)) for x in sig) + "]"
+        out.append(f"sigma_m_per_sqrt_s = {sig_txt}    # random-walk process noise per component, m/sqrt(s)"
+                   + (" (init's float)" if displacement == "constant_velocity" else ""))
+    if displacement == "constant_velocity":
+        acc = (GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"] if accel_sigma_m_per_s_per_sqrt_s is None
+               else float(accel_sigma_m_per_s_per_sqrt_s))
+        out.append(f"accel_sigma_m_per_s_per_sqrt_s = {acc!r}    "
+                   f"# white acceleration of each velocity, m/s/sqrt(s)")
+    if displacement != "static":
+        out.append('# phase_noise = "auto"    # the per-epoch states\' phase variances scaled to the single-epoch '
+                   'residuals (default "model": sigma_a_m, sigma_b_m)')
+        out.append('# multipath = "auto"    # Gauss-Markov phase multipath states per satellite, fitted to the data '
+                   '(low-cost receivers: honest sigma; default "off")')
+    return out
+
+
 def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name: str | None = None,
                      description: str = "", displacement: str = "static", sigma_m_per_sqrt_s=None,
                      positions: dict | None = None, comments=(), options: dict | None = None,
@@ -1100,24 +1124,7 @@ def gnss_config_toml(antennas: dict, nav=(), master: str | None = None, *, name:
     if antenna_types:
         out.append('# antex = "igs20.atx"    # receiver antenna calibrations (ANTEX): each antenna\'s phase-centre offset '
                    'and variations taken out of its observations')
-    out += ["", "[gnss.displacement]",
-            f"model = {_toml_str(displacement)}    # \"static\", \"random_walk\" or \"constant_velocity\" E/N/U "
-            f"displacement of each rover"]
-    if displacement != "static":
-        sig = sigma_m_per_sqrt_s if sigma_m_per_sqrt_s is not None else 0.001
-        sig_txt = repr(float(sig)) if np.isscalar(sig) else "[" + ", ".join(repr(float(x)) for x in sig) + "]"
-        out.append(f"sigma_m_per_sqrt_s = {sig_txt}    # random-walk process noise per component, m/sqrt(s)"
-                   + (" (init's float)" if displacement == "constant_velocity" else ""))
-    if displacement == "constant_velocity":
-        acc = (GNSS_DEFAULTS["accel_sigma_m_per_s_per_sqrt_s"] if accel_sigma_m_per_s_per_sqrt_s is None
-               else float(accel_sigma_m_per_s_per_sqrt_s))
-        out.append(f"accel_sigma_m_per_s_per_sqrt_s = {acc!r}    "
-                   f"# white acceleration of each velocity, m/s/sqrt(s)")
-    if displacement != "static":
-        out.append('# phase_noise = "auto"    # the per-epoch states\' phase variances scaled to the single-epoch '
-                   'residuals (default "model": sigma_a_m, sigma_b_m)')
-        out.append('# multipath = "auto"    # Gauss-Markov phase multipath states per satellite, fitted to the data '
-                   '(low-cost receivers: honest sigma; default "off")')
+    out += _displacement_toml(displacement, sigma_m_per_sqrt_s, accel_sigma_m_per_s_per_sqrt_s)
     for an, (kind, path) in antennas.items():
         out += ["", f"[gnss.antennas.{_toml_str(an)}]"]
         if path is not None:

@@ -63,7 +63,8 @@ from cdgps_cli.core.records import INIT_FORMAT, Series, StateSeries, init_kind
 from cdgps_cli.io.gnss_run import INGEST_SPP_SOURCE, GnssRun, antennas_info
 from cdgps_cli.pipeline.antenna_models import receiver_with_antenna_model
 from cdgps_cli.pipeline.gnss_ingest import anchor_obs, signal_obs
-from cdgps_cli.pipeline.gnss_multipath import multipath_note, multipath_settings
+from cdgps_cli.pipeline.gnss_multipath import (OnColumns, column_occupants, multipath_note, multipath_settings,
+                                               seam_transition, state_columns)
 from cdgps_cli.io import states as states_io
 from cdgps_cli.io.mcap import read_mcap
 from cdgps_cli.core.gps_time import gps_time_str
@@ -406,7 +407,7 @@ def _group_use(d, use: np.ndarray) -> list:
 def _epoch_information(w: dict, use: np.ndarray):
     """Per epoch: c = rᵀPr of the DD phases at the static solution (its NIS), dof, whether it has
     DDs (summed over the signal groups), and per group its usable rows and its reference row per
-    epoch (−1: fewer than two usable rows)."""
+    epoch (−1: fewer than two usable rows); and the DD weight blocks of the usable rows (``known_phase_blocks``)."""
     d = w["data"]
     n_ep = d.t_label.size
     c = np.zeros(n_ep)
@@ -421,7 +422,7 @@ def _epoch_information(w: dict, use: np.ndarray):
         c[ep] += np.einsum("ki,kij,kj->k", rk, p, rk)
         dof[ep] += rows.shape[1] - 1
         has[ep] = True
-    return c, dof, has, list(zip(_group_use(d, use), refs))
+    return c, dof, has, list(zip(_group_use(d, use), refs)), blocks
 
 
 def _random_walk(model: SatelliteDDDisplacement, t: np.ndarray, sigma_rw, p0_sigma: float, smooth: bool):
@@ -464,7 +465,6 @@ def _dynamics_of(dd: SatelliteDDDisplacement, model: str, sigma_rw, accel_sigma,
     if multipath is None:
         return meas, dyn, P0
     from cdgps_cli.model.dynamics_models import WithGaussMarkov  # noqa: PLC0415
-    from cdgps_cli.pipeline.gnss_multipath import OnColumns  # noqa: PLC0415
     n_gm, sigma, tau = multipath
     nb = P0.shape[0]
     P = np.zeros((nb + n_gm, nb + n_gm))
@@ -1394,7 +1394,6 @@ def _rover_model(w: dict, ptr: np.ndarray, idx, n: int, groups, model: str, cfg,
     d = w["data"]
     states = mp is not None and "sigma_m" in mp
     if states:
-        from cdgps_cli.pipeline.gnss_multipath import state_columns  # noqa: PLC0415
         col, n_gm = state_columns(d, use, mp["time_constant_s"])
         mp["states"] = n_gm                     # (said in the rover's summary)
     var = w["var_ph"] * mp["white_factor"] if states and mp["white_factor"] != 1.0 else w["var_ph"]
@@ -1409,7 +1408,6 @@ def _rover_model(w: dict, ptr: np.ndarray, idx, n: int, groups, model: str, cfg,
                                            else None)
     if not states:
         return meas, dyn, P0, ([], [])
-    from cdgps_cli.pipeline.gnss_multipath import column_occupants  # noqa: PLC0415
     return meas, dyn, P0, column_occupants(d, col, n_gm)
 
 
@@ -1459,13 +1457,8 @@ def _prior_from(carried: tuple | None, t0: float, dyn, P0: np.ndarray, shift: np
     goes on, ``holds_first`` naming this window's)."""
     if carried is None:
         return np.zeros(P0.shape[0]), P0, None
-    from cdgps_cli.pipeline.gnss_multipath import seam_transition  # noqa: PLC0415
     t_last, x_last, P_last, n_dyn, holds_last = carried
-    if len(holds_first) or len(holds_last):
-        A, Q = seam_transition(dyn, n_dyn, list(holds_last), list(holds_first), x_last.size, float(t0 - t_last))
-    else:
-        A, _, Q = dyn.transition(float(t0 - t_last))
-        A, Q = np.asarray(A, dtype=np.float64), np.asarray(Q, dtype=np.float64)
+    A, Q = seam_transition(dyn, n_dyn, list(holds_last), list(holds_first), x_last.size, float(t0 - t_last))
     x = A @ x_last
     return (x if shift is None else x - _padded(shift, x.size)), A @ P_last @ A.T + Q, (A, Q)
 
@@ -1480,8 +1473,9 @@ def _rover_forward(a: _EstimateArrays, w: dict, sl: slice, idx, model: str, cfg,
     known = w["known_seg"] | w.get("glonass_known", False)      # (a glonass_fix solution's GLONASS DDs too)
     fixed_any = n_fixed_with_glonass(res["ambiguities"]) > 0
     use = known[w["seg"]] if fixed_any else np.ones(w["seg"].size, dtype=bool)
-    c, dof, has, groups = _epoch_information(w, use)
-    mp = None if model == "static" else multipath_settings(cfg, w, use, _data_factor(cfg, w))
+    c, dof, has, groups, blocks = _epoch_information(w, use)
+    mp = None if model == "static" else multipath_settings(cfg, w, blocks, _data_factor(cfg, w))
+    del blocks
     w.pop("blocks_ph", None)            # the solver's phase weights, no longer needed (a day at 1 Hz: ≈ 60 MiB)
     track = None
     if model == "static":

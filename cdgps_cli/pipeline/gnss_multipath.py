@@ -33,8 +33,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from cdgps_cli.estimation.baseline import known_phase_blocks
-
 __all__ = ["single_epoch_dd_residuals", "multipath_settings", "multipath_note", "state_columns", "column_occupants",
            "seam_transition", "OnColumns"]
 
@@ -72,10 +70,11 @@ def _epoch_solutions(d, w: dict, blocks: list) -> tuple[np.ndarray, np.ndarray]:
     return dx, solved
 
 
-def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, float]:
-    """The DD phase residuals of every epoch solved alone: each epoch's displacement from its known DD phases (rows
-    ``use``; every signal group, weighted as the solver weights them), then each DD's residual at it.  Epochs with
-    fewer than :data:`MIN_FIT_DOF` degrees of freedom are left out.
+def single_epoch_dd_residuals(w: dict, blocks: list) -> tuple[np.ndarray, np.ndarray, list, float]:
+    """The DD phase residuals of every epoch solved alone: each epoch's displacement from its known DD phases
+    (``blocks``: the DD weight blocks of the rows of known ambiguity, every signal group, as
+    :func:`~cdgps_cli.estimation.baseline.known_phase_blocks` gives them), then each DD's residual at it.  Epochs
+    with fewer than :data:`MIN_FIT_DOF` degrees of freedom are left out.
 
     Returns (residual (n_epochs, C) m, NaN where the pair is not seen or the epoch is left out; the bias segment
     (n_epochs, C), all 0: the residuals carry no ambiguity; the C channel keys (group, reference satellite,
@@ -83,7 +82,6 @@ def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.
     none))."""
     d = w["data"]
     n_ep = d.t_label.size
-    blocks, _ = known_phase_blocks(d, w["var_ph"], w["refs_ph"], w["blocks_ph"], use)
     dx, solved = _epoch_solutions(d, w, blocks)
     group = getattr(d, "group", None)
     var = np.asarray(w["var_ph"], dtype=np.float64)
@@ -109,9 +107,9 @@ def single_epoch_dd_residuals(w: dict, use: np.ndarray) -> tuple[np.ndarray, np.
             float(np.mean(np.concatenate(pair_var))))
 
 
-def multipath_settings(cfg, w: dict, use: np.ndarray, data_factor: float = 1.0) -> dict | None:
+def multipath_settings(cfg, w: dict, blocks: list, data_factor: float = 1.0) -> dict | None:
     """The multipath states of one rover's window under ``cfg`` (a :class:`~cdgps_cli.config.structure.GnssConfig`;
-    ``w`` its baseline work, ``use`` its rows of known ambiguity): None with ``multipath = "off"``; else a dict
+    ``w`` its baseline work, ``blocks`` the DD weight blocks of its rows of known ambiguity): None with ``multipath = "off"``; else a dict
     (JSON-ready) with ``mode``, and when states are added ``sigma_m``, ``time_constant_s`` and ``white_factor`` (what
     the white phase variances are multiplied by); with ``"auto"`` also the fit (``fit``: what
     :func:`~cdgps_cli.measurement.multipath.fit_autocovariance` found) and ``detected`` (False: no states).
@@ -127,7 +125,7 @@ def multipath_settings(cfg, w: dict, use: np.ndarray, data_factor: float = 1.0) 
                 "time_constant_s": float(cfg.multipath_time_constant_s), "white_factor": 1.0}
     from cdgps_cli.measurement.multipath import fit_autocovariance  # noqa: PLC0415
 
-    resid, seg, keys, mean_var = single_epoch_dd_residuals(w, use)
+    resid, seg, keys, mean_var = single_epoch_dd_residuals(w, blocks)
     fit = fit_autocovariance(resid, seg, float(w["data"].interval_s)) if keys else None
     if fit is None or not fit["detected"]:
         why = "no DD series long enough" if fit is None else "no time correlation detected (Ljung-Box)"

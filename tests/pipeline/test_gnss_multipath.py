@@ -201,10 +201,10 @@ def test_model_mode_takes_the_given_sigma_and_several_inits_join_as_the_whole_re
     assert "rover: model, in 2 of its 2 windows, each its own: σ 5.00 … 5.00 mm, τ 40 … 40 s" in text
     assert "multipath states" in _nis_side_text(0.5, 0.9, True) and "multipath states" not in _nis_side_text(0.5, 0.9)
     # the control: every multipath state started afresh at the seam, as if the windows' satellites were others
-    import cdgps_cli.pipeline.gnss_multipath as gm
+    import cdgps_cli.pipeline.gnss as gnss_mod
 
-    real = gm.seam_transition
-    monkeypatch.setattr(gm, "seam_transition", lambda dyn, n_dyn, last, first, n_prev, dt:
+    real = gnss_mod.seam_transition
+    monkeypatch.setattr(gnss_mod, "seam_transition", lambda dyn, n_dyn, last, first, n_prev, dt:
                         real(dyn, n_dyn, [], first, n_prev, dt))
     r = run_cli("-q", "estimate", d / "run_m.mcap", "--init", d / "w0.json", "--init", d / "w1.json", "--smooth",
                 "-o", d / "st3.mcap")
@@ -279,6 +279,7 @@ def test_epochs_without_two_degrees_of_freedom_stay_out_of_the_fit(multipath_rov
     from cdgps_cli.io.file_checks import read_init_json
     from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
     from cdgps_cli.pipeline.gnss import _stations, init_window, solve_with_init_integers
+    from cdgps_cli.estimation.baseline import known_phase_blocks
     from cdgps_cli.pipeline.gnss_multipath import single_epoch_dd_residuals
 
     d, _ = multipath_rover
@@ -286,7 +287,11 @@ def test_epochs_without_two_degrees_of_freedom_stay_out_of_the_fit(multipath_rov
     run = read_gnss_run(d / "run_auto.mcap", columns=SOLVER_COLUMNS, window=init_window(init))
     _, w, _, _ = solve_with_init_integers(run, init, "rover", _stations(run))
     use = w["known_seg"][w["seg"]]
-    resid, _, keys, mean_var = single_epoch_dd_residuals(w, use)
+
+    def blocks(rows):
+        return known_phase_blocks(w["data"], w["var_ph"], w["refs_ph"], w["blocks_ph"], rows)[0]
+
+    resid, _, keys, mean_var = single_epoch_dd_residuals(w, blocks(use))
     n_dd = np.sum(np.isfinite(resid), axis=1)
     assert n_dd.max() > 5 and np.all((n_dd == 0) | (n_dd >= 5))
     # keep only 4 satellites at every epoch (3 DDs): nothing is left to fit
@@ -295,7 +300,7 @@ def test_epochs_without_two_degrees_of_freedom_stay_out_of_the_fit(multipath_rov
     for k in range(d_.t_label.size):
         rows = np.flatnonzero((d_.epoch == k) & use)[:4]
         four[rows] = True
-    resid4, _, _, _ = single_epoch_dd_residuals(w, use & four)
+    resid4, _, _, _ = single_epoch_dd_residuals(w, blocks(use & four))
     assert not np.isfinite(resid4).any()
     assert 1e-6 < mean_var < 1e-3
 
@@ -324,11 +329,11 @@ def test_a_fit_without_white_noise_leaves_the_phases_some(monkeypatch):
     import cdgps_cli.measurement.multipath as mm
     import cdgps_cli.pipeline.gnss_multipath as gm
 
-    monkeypatch.setattr(gm, "single_epoch_dd_residuals", lambda w, use: (np.zeros((5, 1)), np.zeros((5, 1)), [(0,)], 4e-5))
+    monkeypatch.setattr(gm, "single_epoch_dd_residuals", lambda w, blocks: (np.zeros((5, 1)), np.zeros((5, 1)), [(0,)], 4e-5))
     monkeypatch.setattr(mm, "fit_autocovariance", lambda r, s, dt: {
         "detected": True, "raw_sigma_m": 0.006, "white_sigma_m": 0.0, "time_constant_s": 100.0,
         "raw_time_constant_s": 100.0, "ljung_box_q": 1e4, "ljung_box_limit": 50.0, "runs": 3})
     cfg = SimpleNamespace(multipath="auto")
-    mp = gm.multipath_settings(cfg, {"data": SimpleNamespace(interval_s=1.0)}, np.ones(1, dtype=bool), 1.0)
+    mp = gm.multipath_settings(cfg, {"data": SimpleNamespace(interval_s=1.0)}, [], 1.0)
     assert mp["correlated_share"] == gm.MAX_CORRELATED_SHARE == 0.999
     assert mp["white_factor"] == pytest.approx(1e-3) and mp["sigma_m"] == pytest.approx(np.sqrt(0.999 * 4e-5))
