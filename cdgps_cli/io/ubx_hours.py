@@ -70,11 +70,12 @@ class UbxHours:
 
 
 def _fletcher_ok(frame: bytes) -> bool:
-    a = b = 0
-    for byte in frame[2:-2]:
-        a = (a + byte) & 0xFF
-        b = (b + a) & 0xFF
-    return frame[-2] == a and frame[-1] == b
+    """Whether a whole UBX frame's two checksum bytes are the 8-bit Fletcher sums of its class, id, length and
+    payload: CK_A = Σ x_j and CK_B = Σ (n − j)·x_j over those n bytes (mod 256), vectorised."""
+    x = np.frombuffer(frame, dtype=np.uint8)[2:-2].astype(np.int64)
+    ck_a = int(x.sum()) & 0xFF
+    ck_b = int(np.arange(x.size, 0, -1, dtype=np.int64) @ x) & 0xFF
+    return frame[-2] == ck_a and frame[-1] == ck_b
 
 
 def _rawx_frame_at(buf: bytes, i: int) -> int | None:

@@ -403,3 +403,24 @@ def test_thin_ublox_tables_give_the_lock_counts(tmp_path, monkeypatch):
     assert len(gnss_ingest._channel_groups(np.bincount(pd.factorize(r["sat"])[0]), 500)) > 5
     for tab in (r, small.raw):
         assert np.array_equal(gnss_ingest._ubx_lli(tab, tab["time_gps_s"].to_numpy(), None), want)
+
+
+def test_frame_checksum_is_the_byte_by_byte_fletcher_sum():
+    """The vectorised check equals the UBX protocol's byte-by-byte 8-bit Fletcher loop and the stream's prefix-sum
+    checksums (ubx_frames._Fletcher), and refuses a frame with one payload byte or one checksum byte changed."""
+    from cdgps_cli.io.ubx_frames import _Fletcher  # noqa: PLC0415
+    from cdgps_cli.io.ubx_hours import _fletcher_ok  # noqa: PLC0415
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 16, 255, 256, 1000, 4000):
+        body = bytes([0x02, 0x15]) + n.to_bytes(2, "little") + rng.integers(0, 256, n, dtype=np.uint8).tobytes()
+        a = b = 0
+        for byte in body:
+            a, b = (a + byte) & 0xFF, (b + a + byte) & 0xFF
+        frame = b"\xb5\x62" + body + bytes((a, b))
+        assert _Fletcher(frame)(2, len(frame) - 2) == bytes((a, b))
+        assert _fletcher_ok(frame)
+        for k in (4, len(frame) - 1, len(frame) - 2):
+            bad = bytearray(frame)
+            bad[k] ^= 0x01
+            assert not _fletcher_ok(bytes(bad)), (n, k)
