@@ -15,6 +15,24 @@ from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _em
                                _parse_named_files, _write_json_atomic, _write_text_atomic)
 
 
+def _time_window_options(f):
+    """``--start-time`` / ``--end-time``: the rover epochs a GNSS command solves (RTKLIB's ``-ts`` / ``-te``; one
+    rule for every GNSS command, :mod:`cdgps_cli.measurement.time_window`)."""
+    f = click.option("--end-time", "end_time", default=None,
+                     help="Last rover epoch solved, GPS time, as --start-time (RTKLIB's -te) [the record's last].")(f)
+    return click.option("--start-time", "start_time", default=None,
+                        help="First rover epoch solved, GPS time: YYYY/MM/DD HH:MM:SS[.f] or YYYY-MM-DDTHH:MM:SS[.f] "
+                             "(RTKLIB's -ts) [the record's first].")(f)
+
+
+def _time_window(start_time: str | None, end_time: str | None) -> dict:
+    """``{"start_gps_s": …, "end_gps_s": …}`` of the flags given (GPS s), each parsed or refused naming its flag."""
+    from cdgps_cli.core.gps_time import parse_gps_time
+
+    return {key: parse_gps_time(text, flag) for key, text, flag in
+            (("start_gps_s", start_time, "--start-time"), ("end_gps_s", end_time, "--end-time")) if text is not None}
+
+
 @main.command("baseline", short_help="Static baseline of two RINEX receivers → JSON")
 @click.option("--config", "job", type=click.Path(dir_okay=False), default=None,
               help="Baseline job TOML (files, master, options; see docs/geonet.md). Options below override it.")
@@ -48,17 +66,20 @@ from cdgps_cli.cli.app import (_warn, _say, _output_option, _named_by_flags, _em
 @click.option("--antenna", "antenna", multiple=True, metavar="NAME=TYPE",
               help="A station's antenna type and radome as the ANTEX file names them (\"TRM59800.80 SCIT\"), or none "
                    "(no model) [its RINEX header's ANT # / TYPE].")
+@_time_window_options
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
 def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
-                 float_only, glonass_fix, no_troposphere, iono_threshold_km, antex, antenna, output, as_json):
+                 float_only, glonass_fix, no_troposphere, iono_threshold_km, antex, antenna, start_time, end_time, output,
+                 as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     import dataclasses
 
     from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
     from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
 
+    window = _time_window(start_time, end_time)
     positions, origins, antex_job, types, notes = {}, {}, None, {}, []
     if job:
         cfg = load_baseline_job(job)
@@ -119,7 +140,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     res = json_safe(baseline_from_files(stations, navs, mst, opt,
                                         positions={k: v for k, v in positions.items() if k in stations},
                                         origins=origins, iono_threshold_km=iono, antex=antex or antex_job,
-                                        antenna_types=types))
+                                        antenna_types=types, **window))
     if job:
         res["inputs"]["config"] = str(job)
     for w in notes:
@@ -420,11 +441,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
               help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
                    "does is fixed and the epoch stays float [0.999].")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
-@click.option("--start-time", "start_time", default=None,
-              help="First rover epoch solved, GPS time: YYYY/MM/DD HH:MM:SS[.f] or YYYY-MM-DDTHH:MM:SS[.f] (RTKLIB's "
-                   "-ts) [the record's first].")
-@click.option("--end-time", "end_time", default=None,
-              help="Last rover epoch solved, GPS time, as --start-time (RTKLIB's -te) [the record's last].")
+@_time_window_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output: .pos (RTKLIB, lat/lon/height), .nmea/.gga (NMEA GGA), .geojson, or CSV (any other suffix; .kml, .kmz, .gpx, .sbp, .stat are refused: pos2kml makes KML from a .pos).")
 @click.option("--pos-frame", "pos_frame", type=click.Choice(["llh", "xyz", "enu"]), default=None,
@@ -440,14 +457,11 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     The rover's epochs drive the solution: each takes the nearest base epoch within --max-age (a base
     with gaps or a lower rate is bridged, its σ growing with the age); every rover epoch not used is
     counted with its reason."""
-    from cdgps_cli.core.gps_time import parse_gps_time
     from cdgps_cli.pipeline.gnss_multi import rtk_from_files
 
     options = {"signals": "auto" if signals.strip() == "auto" else tuple(x.strip() for x in signals.split(",") if x.strip()),
                "mode": mode, "glonass_fix": glonass_fix}
-    for key, text, flag in (("start_gps_s", start_time, "--start-time"), ("end_gps_s", end_time, "--end-time")):
-        if text is not None:
-            options[key] = parse_gps_time(text, flag)
+    options.update(_time_window(start_time, end_time))
     if float_only:
         options["fix"] = False
     for key, value in (("mask_deg", mask_deg), ("ratio", ratio_threshold), ("max_age_s", max_age_s),

@@ -2697,6 +2697,10 @@ def format_summary(res: dict) -> str:
         f"({ep['first_epoch']} – {ep['last_epoch']}, {iv}), {len(res['satellites'])} satellites, "
         f"{res['residuals']['n_dd_phase']} DD phases, {ep['n_reference_changes']} reference changes",
     ]
+    win = ep.get("time_window")
+    if win is not None:
+        lines.append(f"  rover epochs asked for: {win['window']} (--start-time / --end-time); "
+                     f"{win['rover_epochs_outside']} of the rover's epochs are outside it")
     r = amb["ratio"]
     rtxt = "-" if r is None else (r if isinstance(r, str) else format(r, ".2f"))
     lines.append(f"  ambiguities: {amb['n_segments']} SD segments ({amb['n_pivots']} datum), {amb['n_fixed']} of "

@@ -18,11 +18,12 @@ from cdgps_cli.config.options import IONO_THRESHOLD_KM
 from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
-from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.gps_time import distinct_times, gps_time_str, time_span
 from cdgps_cli.io.gnss_run import antennas_info, merge_nav
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import read_rinex_obs
+from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_antenna_model
 
@@ -74,7 +75,8 @@ def refuse_missing_files(rinex: dict, nav_paths, origins: dict | None = None) ->
 def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOptions | None = None,
                         positions: dict | None = None, origins: dict | None = None,
                         iono_threshold_km: float | None = IONO_THRESHOLD_KM, antex=None,
-                        antenna_types: dict | None = None) -> dict:
+                        antenna_types: dict | None = None, start_gps_s: float | None = None,
+                        end_gps_s: float | None = None) -> dict:
     """Read the files and solve (:func:`solve_static_baseline`); ``rinex`` maps exactly two station
     names to observation files, ``master`` is one of them; ``positions`` optionally gives
     ``{name: ECEF m}`` instead of the RINEX header positions; ``origins`` names where each path was
@@ -82,13 +84,20 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     refuses it (:func:`~cdgps_cli.estimation.baseline.check_iono_rule`: this solution neglects the DD ionosphere and
     the wet delays); None: not checked.  ``antex``: an ANTEX file whose calibrations of the two antennas (named by
     ``antenna_types`` {station: type or "none"}, else by their RINEX headers) are taken out of their observations
-    (:mod:`cdgps_cli.pipeline.antenna_models`); the result's ``antennas`` says which."""
+    (:mod:`cdgps_cli.pipeline.antenna_models`); the result's ``antennas`` says which.  ``start_gps_s`` /
+    ``end_gps_s`` (GPS s, each None: the record's end): the rover epochs solved, as ``rtk --start-time / --end-time``
+    take them (:mod:`cdgps_cli.measurement.time_window`); the rover's epochs outside are counted in the result's
+    ``epochs.epoch_pairing`` with their reason, and ``epochs.time_window`` says the window."""
     if len(rinex) != 2:
         raise CdgpsError(f"a baseline needs exactly two RINEX observation files (NAME=PATH), got {len(rinex)}: "
                          f"{', '.join(rinex) or 'none'}")
     if master not in rinex:
         raise CdgpsError(f"master {master!r} is not one of the stations given: {', '.join(rinex)}")
-    (options or BaselineOptions()).validate()
+    opt = options or BaselineOptions()
+    opt.validate()
+    bad = window_errors(start_gps_s, end_gps_s)
+    if bad:
+        raise CdgpsError("invalid baseline time window: " + "; ".join(bad))
     refuse_missing_files(rinex, nav_paths, origins)
     rinex = {k: expand_paths([v] if isinstance(v, (str, Path)) else list(v), (origins or {}).get("rinex", {}).get(k, f"--rinex {k}"))
              for k, v in rinex.items()}
@@ -98,6 +107,7 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     stations, nav = load_stations(rinex, nav_paths, joins)
     shown = {k: v if isinstance(v, (str, Path)) else pieces_text(v) for k, v in rinex.items()}
     rover = next(n for n in rinex if n != master)
+    stations, n_outside = _cut_to_window(stations, master, rover, shown, opt, start_gps_s, end_gps_s)
     pos = positions or {}
     stations, antennas = _with_antenna_models(stations, nav, (master, rover), pos, shown, antex, antenna_types or {},
                                               joins)
@@ -116,7 +126,38 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
         res["warnings"] = [*joins, *res.get("warnings", [])]
     if antennas is not None:
         res["antennas"] = antennas
+    if start_gps_s is not None or end_gps_s is not None:
+        ep = res["epochs"]
+        ep["epoch_pairing"] = with_dropped(ep["epoch_pairing"], OUTSIDE_WINDOW, n_outside)
+        ep["time_window"] = {"start_gps_s": start_gps_s, "end_gps_s": end_gps_s,
+                             "window": window_text(start_gps_s, end_gps_s), "rover_epochs_outside": n_outside}
     return res
+
+
+def _cut_to_window(stations: dict, master: str, rover: str, shown: dict, opt: BaselineOptions,
+                   lo: float | None, hi: float | None) -> tuple[dict, int]:
+    """The stations with the rover's epochs cut to the window [``lo``, ``hi``] (GPS s; None: open) and the master's
+    to it widened by ``max_age_s`` on each side (where the window's rover epochs find their base epochs), and how
+    many of the rover's distinct epochs are outside; the same stations and 0 without a window.  CdgpsError naming
+    the file and its span when no rover epoch is inside, or no master epoch within ``max_age_s`` of it."""
+    if lo is None and hi is None:
+        return stations, 0
+    out, n_outside = dict(stations), 0
+    age = float(opt.max_age_s)
+    for name, a, b in ((rover, lo, hi), (master, None if lo is None else lo - age, None if hi is None else hi + age)):
+        obs = stations[name].obs
+        t = obs["time_gps_s"].to_numpy(dtype="float64")
+        keep = in_window(t, a, b, opt.sync_tol_s)
+        if not keep.any():
+            span = time_span(t)
+            has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
+            near = "" if name == rover else f" or within max_age_s ({age:g} s) of it"
+            raise CdgpsError(f"{shown[name]} ({name}): no epoch in the window asked for{near} "
+                             f"({window_text(lo, hi)}: --start-time / --end-time); its epochs span {has}")
+        if name == rover:
+            n_outside = int(distinct_times(t[~keep]).size)
+        out[name] = stations[name]._replace(obs=obs[keep].reset_index(drop=True))
+    return out, n_outside
 
 
 def _with_antenna_models(stations: dict, nav, order: tuple, positions: dict, shown: dict, antex, types: dict,

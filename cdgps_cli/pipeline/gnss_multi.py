@@ -31,6 +31,7 @@ from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, rec
                                             reported_positions, solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
 from cdgps_cli.measurement.slips import unflagged_slip_text, without_unlocked_channels
+from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
@@ -129,39 +130,15 @@ def validate_options(options: dict) -> dict:
             bad.append(f"{key}: expected a number of seconds > 0, got {opt[key]}")
     if float(opt["max_age_s"]) < float(opt["sync_tol_s"]):
         bad.append(f"max_age_s: expected ≥ sync_tol_s ({opt['sync_tol_s']} s), got {opt['max_age_s']}")
-    bad += _window_errors(opt)
+    bad += window_errors(opt["start_gps_s"], opt["end_gps_s"])
     if bad:
         raise CdgpsError("invalid rtk options: " + "; ".join(bad))
     return opt
 
 
-def _window_errors(opt: dict) -> list:
-    """What is wrong with ``start_gps_s`` / ``end_gps_s`` (each None or a finite GPS time, start ≤ end)."""
-    bad = []
-    for key in ("start_gps_s", "end_gps_s"):
-        v = opt[key]
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
-                              or not np.isfinite(v)):
-            bad.append(f"{key}: expected a GPS time in seconds or None, got {v!r}")
-    if not bad and None not in (opt["start_gps_s"], opt["end_gps_s"]) and opt["start_gps_s"] > opt["end_gps_s"]:
-        bad.append(f"end_gps_s (--end-time): expected at or after start_gps_s (--start-time, "
-                   f"{gps_time_str(opt['start_gps_s'])}), got {gps_time_str(opt['end_gps_s'])}")
-    return bad
-
-
-#: why a rover epoch of its file was not solved: outside ``start_gps_s`` … ``end_gps_s``
-OUTSIDE_WINDOW = "outside the time window asked for (--start-time / --end-time)"
-
-
-def _in_window(t: np.ndarray, lo: float, hi: float, tol: float) -> np.ndarray:
-    """Which time tags ``t`` are in the window [``lo``, ``hi``] as RTKLIB's ``-ts``/``-te`` take it: at most ``tol``
-    before its start, less than ``tol`` after its end (a tag at .998 s or .999 s belongs to the next second)."""
-    return (t - lo >= -tol) & (t - hi < tol)
-
-
 def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_path, rover_path) -> tuple:
     """The base and rover tables cut to the options' window (``start_gps_s`` … ``end_gps_s``, the rover's epochs within
-    ``sync_tol_s`` as :func:`_in_window` takes them; the base's ``max_age_s`` wider on each side), the rover's header
+    ``sync_tol_s`` as :func:`~cdgps_cli.measurement.time_window.in_window` takes them; the base's ``max_age_s`` wider on each side), the rover's header
     with its file's epochs outside the window taken out of ``file_epochs``, and how many those are (of the file's
     epochs when its header lists them, ``file_epoch_times``; else of the table's); the same tables and 0 without a
     window.  CdgpsError naming the rover's span when no rover epoch is inside, and the base's when no base epoch is
@@ -171,10 +148,10 @@ def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_pat
         return b, r, hr, 0
     lo, hi = -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
     tol, tr = float(opt["sync_tol_s"]), r["time_gps_s"].to_numpy()
-    want = f"{gps_time_str(lo) if np.isfinite(lo) else 'its start'} – {gps_time_str(hi) if np.isfinite(hi) else 'its end'}"
-    keep = _in_window(tr, lo, hi, tol)
+    want = window_text(opt["start_gps_s"], opt["end_gps_s"])
+    keep = in_window(tr, lo, hi, tol)
     age = float(opt["max_age_s"])           # the base: where the window's epochs find their pairs and bridges
-    kb = _in_window(b["time_gps_s"].to_numpy(), lo - age, hi + age, tol)
+    kb = in_window(b["time_gps_s"].to_numpy(), lo - age, hi + age, tol)
     for df, k, path, who in ((r, keep, rover_path, "rover"), (b, kb, base_path, "base")):
         if not k.any():
             span = time_span(df["time_gps_s"].to_numpy())
@@ -184,7 +161,7 @@ def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_pat
                              f"--end-time); its epochs span {has}")
     listed = hr.get("file_epoch_times")
     all_t = distinct_times(tr) if listed is None else np.asarray(listed.t, dtype=np.float64)
-    n_outside = int(np.sum(~_in_window(all_t, lo, hi, tol)))
+    n_outside = int(np.sum(~in_window(all_t, lo, hi, tol)))
     if hr.get("file_epochs") is not None:        # (counted apart, not as epochs without a phase)
         hr = {**hr, "file_epochs": int(hr["file_epochs"]) - n_outside}
     return b[kb].reset_index(drop=True), r[keep].reset_index(drop=True), hr, n_outside
@@ -288,7 +265,7 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
         if str(exc).startswith(("no common epochs", "no common satellites", "no double differences")):
             raise CdgpsError(f"{rover_path} (rover) and {base_path} (base): {exc}") from None
         raise
-    ep = _with_dropped(_count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r),
+    ep = with_dropped(_count_epochs_without_phase(_count_epochs_without_geometry(res["epoch_pairing"], r, gr), hr, r),
                        OUTSIDE_WINDOW, pair.n_outside)
     warnings += _solution_warnings(res, ep, opt, rover_path)
     applied = {**opt, "antex": opt["antex"] if any(m is not None for m in ant.values()) else None}
@@ -1003,15 +980,8 @@ NO_GEOMETRY = "without a satellite position (no pseudorange, or no healthy ephem
 def _count_epochs_without_geometry(pairing: dict, rover: pd.DataFrame, geometry: pd.DataFrame) -> dict:
     """The epoch pairing's summary with the rover epochs read but left without a geometry row (every row of the
     epoch lacked a pseudorange, or an ephemeris covering it) counted too: in ``rover_epochs`` and in ``dropped``."""
-    return _with_dropped(pairing, NO_GEOMETRY,
+    return with_dropped(pairing, NO_GEOMETRY,
                          np.setdiff1d(rover["time_gps_s"].to_numpy(), geometry["time_gps_s"].to_numpy()).size)
-
-
-def _with_dropped(pairing: dict, reason: str, n: int) -> dict:
-    """The epoch pairing's summary with ``n`` rover epochs more, dropped for ``reason`` (as it is when none)."""
-    if n <= 0:
-        return pairing
-    return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], reason: n}}
 
 
 #: why a rover epoch of its file never reached the signal table
@@ -1024,7 +994,7 @@ def _count_epochs_without_phase(pairing: dict, header: dict, rover: pd.DataFrame
     and ``dropped``; ``header["file_epochs"]``: the file's distinct observation epochs (None: not known, e.g.
     several files joined)."""
     n_file = header.get("file_epochs")
-    return _with_dropped(pairing, NO_PHASE, 0 if n_file is None else
+    return with_dropped(pairing, NO_PHASE, 0 if n_file is None else
                          int(n_file) - int(np.unique(rover["time_gps_s"].to_numpy()).size))
 
 

@@ -15,7 +15,7 @@ import pytest
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_seconds, parse_gps_time
-from cdgps_cli.pipeline.gnss_multi import OUTSIDE_WINDOW
+from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW
 from cdgps_cli.sim.rinex_edit import edit_rinex3_obs, epoch_times_gps_s
 from tests._shared import REPO_ROOT, run_cli
 
