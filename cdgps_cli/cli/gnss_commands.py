@@ -74,73 +74,27 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
                  float_only, glonass_fix, no_troposphere, iono_threshold_km, antex, antenna, start_time, end_time, output,
                  as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
-    import dataclasses
-
-    from cdgps_cli.estimation.baseline import BaselineOptions, format_summary, json_safe
-    from cdgps_cli.pipeline.baseline_job import baseline_from_files, load_baseline_job
+    from cdgps_cli.estimation.baseline import format_summary, json_safe
+    from cdgps_cli.pipeline.baseline_job import baseline_from_files, baseline_inputs
 
     window = _time_window(start_time, end_time)
-    positions, origins, antex_job, types, notes = {}, {}, None, {}, []
-    if job:
-        cfg = load_baseline_job(job)
-        notes = list(cfg.get("notes") or [])
-        stations, navs, mst, opt = cfg["rinex"], cfg["nav"], cfg["master"], cfg["options"]
-        positions, origins = cfg.get("positions", {}), cfg.get("origins", {})
-        iono = cfg["iono_threshold_km"]
-        antex_job, types = cfg.get("antex"), dict(cfg.get("antenna_types") or {})
-    else:
-        stations, navs, mst, opt = {}, [], None, BaselineOptions()
-        iono = GNSS_DEFAULTS["iono_threshold_km"]
-    iono = iono if iono_threshold_km is None else iono_threshold_km
-    if rinex:
-        stations = _parse_named_files(rinex, "--rinex", "NAME")
-        origins = {k: v for k, v in origins.items() if k != "rinex"}     # named by --rinex, not the job
-        types = {}                                  # the job's antenna types name its stations, not these
-    if nav:
-        navs = list(nav)
-        origins = {k: v for k, v in origins.items() if k != "nav"}
-    mst = master or mst
-    if len(stations) != 2:
-        raise CdgpsError(f"give exactly two stations with --rinex NAME=PATH (or --config), got {len(stations)}")
-    if not navs:
-        raise CdgpsError("give at least one navigation file with --nav (or --config)")
-    if not mst:
-        raise CdgpsError(f"--master is required: which of {', '.join(stations)} is the reference at its header position")
-    if mst not in stations:
-        raise CdgpsError(f"master {mst!r} is not one of the stations given: {', '.join(stations)}")
-    changes = {}
-    if mask_deg is not None:
-        changes["mask_deg"] = mask_deg
-    if ratio_threshold is not None:
-        changes["ratio_threshold"] = ratio_threshold
-    if min_success_rate is not None:
-        changes["min_success_rate"] = min_success_rate
-    if max_age_s is not None:
-        changes["max_age_s"] = max_age_s
-    if weighting is not None:
-        changes["weighting"] = weighting
-    if no_partial:
-        changes["partial"] = False
-    if float_only:
-        changes["fix"] = False
-    if glonass_fix:
-        changes["glonass_fix"] = True
-    if no_troposphere:
-        changes["troposphere"] = False
+    changes = {k: v for k, v in (("mask_deg", mask_deg), ("ratio_threshold", ratio_threshold),
+                                 ("min_success_rate", min_success_rate), ("max_age_s", max_age_s),
+                                 ("weighting", weighting)) if v is not None}
+    changes.update({k: v for k, flag, v in (("partial", no_partial, False), ("fix", float_only, False),
+                                             ("glonass_fix", glonass_fix, True),
+                                             ("troposphere", no_troposphere, False)) if flag})
     flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting",
              "min_success_rate": "--min-success-rate"}
-    opt = dataclasses.replace(opt, **changes)
-    _named_by_flags(opt.validate, {k: flags[k] for k in changes if k in flags})
-    rover = next(n for n in stations if n != mst)
-    _say(ctx, f"baseline {mst} → {rover}: {len(navs)} navigation file(s), mask {opt.mask_deg:g}°, ratio {opt.ratio_threshold:g} …")
-    types.update(_parse_antenna_types(antenna, "NAME"))
-    unknown = sorted(set(types) - set(stations))
-    if unknown:
-        raise CdgpsError(f"--antenna {unknown[0]}: not one of the stations given ({', '.join(stations)})")
-    res = json_safe(baseline_from_files(stations, navs, mst, opt,
-                                        positions={k: v for k, v in positions.items() if k in stations},
-                                        origins=origins, iono_threshold_km=iono, antex=antex or antex_job,
-                                        antenna_types=types, **window))
+    inp = _named_by_flags(lambda: baseline_inputs(
+        job, stations=_parse_named_files(rinex, "--rinex", "NAME") if rinex else None, nav_paths=nav, master=master,
+        changes=changes, antenna_types=_parse_antenna_types(antenna, "NAME"), iono_threshold_km=iono_threshold_km,
+        antex=antex), {k: flags[k] for k in changes if k in flags})
+    notes, opt = inp.pop("notes"), inp["options"]
+    rover = next(n for n in inp["rinex"] if n != inp["master"])
+    _say(ctx, f"baseline {inp['master']} → {rover}: {len(inp['nav_paths'])} navigation file(s), mask {opt.mask_deg:g}°, "
+              f"ratio {opt.ratio_threshold:g} …")
+    res = json_safe(baseline_from_files(**inp, **window))
     if job:
         res["inputs"]["config"] = str(job)
     for w in notes:

@@ -8,6 +8,7 @@ and hands the solver its :class:`~cdgps_cli.estimation.baseline.Station` records
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from pathlib import Path
@@ -27,7 +28,7 @@ from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_antenna_model
 
-__all__ = ["load_stations", "baseline_from_files", "load_baseline_job", "refuse_missing_files"]
+__all__ = ["load_stations", "baseline_from_files", "baseline_inputs", "load_baseline_job", "refuse_missing_files"]
 
 
 def load_stations(rinex: dict, nav_paths, warnings: list | None = None) -> tuple[dict, pd.DataFrame]:
@@ -194,6 +195,73 @@ _JOB_KEYS = {
     "sigma_b_m": (int, float), "code_ratio": (int, float), "max_gap_s": (int, float), "iono_threshold_km": (int, float),
     "antex": str,
 }
+
+
+def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), master: str | None = None,
+                    changes: dict | None = None, antenna_types: dict | None = None,
+                    iono_threshold_km: float | None = None, antex=None) -> dict:
+    """The arguments of :func:`baseline_from_files`: a job file's (:func:`load_baseline_job`; None: none) with what
+    was given beside it on top, as ``cdgps baseline`` takes them.
+
+    Parameters
+    ----------
+    job : path, optional
+        A baseline job file.
+    stations : dict, optional
+        ``{name: observation file(s)}`` instead of the job's stations (their positions, origins and antenna types,
+        which name the job's stations, are then not used).
+    nav_paths : sequence of paths
+        Navigation files instead of the job's (empty: the job's).
+    master : str, optional
+        The reference station instead of the job's.
+    changes : dict, optional
+        :class:`~cdgps_cli.estimation.baseline.BaselineOptions` fields to set on the job's options (or the defaults).
+    antenna_types : dict, optional
+        ``{station: antenna type or "none"}`` on top of the job's.
+    iono_threshold_km, antex : optional
+        Instead of the job's (None: the job's, else the default / none).
+
+    Returns
+    -------
+    dict
+        ``rinex``, ``nav_paths``, ``master``, ``options``, ``positions``, ``origins``, ``iono_threshold_km``,
+        ``antex``, ``antenna_types`` (the keywords of :func:`baseline_from_files`) and ``notes`` (the job's warnings).
+
+    Raises
+    ------
+    CdgpsError
+        Not two stations, no navigation file, no master or one that is not a station, an antenna type of a station not
+        given, an invalid option (named by its field).
+    """
+    got = load_baseline_job(job) if job else {
+        "rinex": {}, "nav": [], "master": None, "options": BaselineOptions(), "positions": {}, "origins": {},
+        "iono_threshold_km": IONO_THRESHOLD_KM, "antex": None, "antenna_types": {}, "notes": []}
+    rinex, origins = got["rinex"], dict(got.get("origins") or {})
+    positions, types = dict(got.get("positions") or {}), dict(got.get("antenna_types") or {})
+    if stations:
+        rinex, types = stations, {}         # the job's positions and antenna types name its stations, not these
+        origins.pop("rinex", None)
+    if nav_paths:
+        origins.pop("nav", None)
+    navs, mst = list(nav_paths) or list(got["nav"]), master or got["master"]
+    if len(rinex) != 2:
+        raise CdgpsError(f"give exactly two stations with --rinex NAME=PATH (or --config), got {len(rinex)}")
+    if not navs:
+        raise CdgpsError("give at least one navigation file with --nav (or --config)")
+    if not mst:
+        raise CdgpsError(f"--master is required: which of {', '.join(rinex)} is the reference at its header position")
+    if mst not in rinex:
+        raise CdgpsError(f"master {mst!r} is not one of the stations given: {', '.join(rinex)}")
+    opt = dataclasses.replace(got["options"], **(changes or {}))
+    opt.validate()
+    types.update(antenna_types or {})
+    unknown = sorted(set(types) - set(rinex))
+    if unknown:
+        raise CdgpsError(f"--antenna {unknown[0]}: not one of the stations given ({', '.join(rinex)})")
+    return {"rinex": rinex, "nav_paths": navs, "master": mst, "options": opt,
+            "positions": {k: v for k, v in positions.items() if k in rinex}, "origins": origins,
+            "iono_threshold_km": got["iono_threshold_km"] if iono_threshold_km is None else iono_threshold_km,
+            "antex": antex or got.get("antex"), "antenna_types": types, "notes": list(got.get("notes") or [])}
 
 
 def load_baseline_job(path) -> dict:

@@ -140,3 +140,32 @@ def test_baseline_refuses_a_long_baseline_as_init_does(tmp_path):
     job.write_text(job.read_text().replace("iono_threshold_km = 40", "iono_threshold_km = -1"))
     with pytest.raises(CdgpsError, match=r"baseline.iono_threshold_km: expected a baseline length in km >= 0"):
         load_baseline_job(job)
+
+
+def test_what_is_given_beside_a_job_goes_on_top_of_it():
+    """``baseline_inputs``: the job's stations, navigation files, master and options, each replaced by what is given
+    beside it (``cdgps baseline --config JOB --master … --mask-deg …``); stations given replace the job's and drop
+    its origins; every refusal names what is missing or wrong."""
+    from cdgps_cli.pipeline.baseline_job import baseline_inputs  # noqa: PLC0415
+
+    job = load_baseline_job(JOB)
+    got = baseline_inputs(JOB)
+    assert (got["rinex"], got["nav_paths"], got["master"], got["options"]) == (job["rinex"], job["nav"], job["master"],
+                                                                              job["options"])
+    got = baseline_inputs(JOB, master="0759", nav_paths=["x.nav"], changes={"mask_deg": 20.0, "partial": False})
+    assert (got["master"], got["nav_paths"], got["options"].mask_deg, got["options"].partial) == ("0759", ["x.nav"],
+                                                                                                   20.0, False)
+    assert got["options"].ratio_threshold == job["options"].ratio_threshold and "nav" not in got["origins"]
+    two = {"a": "a.obs", "b": "b.obs"}
+    got = baseline_inputs(None, stations=two, nav_paths=["n"], master="a", antenna_types={"b": "none"})
+    assert got["rinex"] == two and "rinex" not in got["origins"] and got["antenna_types"] == {"b": "none"}
+    for kw, said in (({"stations": {"a": "a.obs"}, "nav_paths": ["n"], "master": "a"}, "exactly two stations"),
+                     ({"stations": two, "master": "a"}, "at least one navigation file"),
+                     ({"stations": two, "nav_paths": ["n"]}, "--master is required"),
+                     ({"stations": two, "nav_paths": ["n"], "master": "c"}, "master 'c' is not one of"),
+                     ({"stations": two, "nav_paths": ["n"], "master": "a", "changes": {"mask_deg": 95.0}},
+                      "mask_deg must be in"),
+                     ({"stations": two, "nav_paths": ["n"], "master": "a", "antenna_types": {"c": "none"}},
+                      "--antenna c: not one of")):
+        with pytest.raises(CdgpsError, match=said):
+            baseline_inputs(None, **kw)
