@@ -41,6 +41,10 @@ def _time_window(start_time: str | None, end_time: str | None) -> dict:
                    "glob), gives its consecutive files (hourly, daily): one record.")
 @click.option("--nav", "nav", multiple=True, type=click.Path(dir_okay=False), help="RINEX GPS navigation file (repeatable).")
 @click.option("--master", default=None, help="Station held at its RINEX header position (the reference).")
+@click.option("--master-xyz", "master_xyz", nargs=3, type=float, default=None,
+              help="The master's surveyed antenna position, ECEF m, instead of its RINEX header's (a header without "
+                   "one, or 0 0 0 as software receivers and converters write) [the job's position_ecef_m, else its "
+                   "header's].")
 @click.option("--mask-deg", type=float, default=None, help=f"Elevation mask, degrees [{GNSS_DEFAULTS['mask_deg']:g}].")
 @click.option("--ratio", "ratio_threshold", type=float, default=None, help=f"LAMBDA ratio-test threshold [{GNSS_DEFAULTS['ratio']:g}].")
 @click.option("--min-success-rate", type=float, default=None,
@@ -70,7 +74,7 @@ def _time_window(start_time: str | None, end_time: str | None) -> dict:
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @click.pass_context
-def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
+def baseline_cmd(ctx, job, rinex, nav, master, master_xyz, mask_deg, ratio_threshold, min_success_rate, max_age_s, weighting, no_partial,
                  float_only, glonass_fix, no_troposphere, iono_threshold_km, antex, antenna, start_time, end_time, output,
                  as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
@@ -89,7 +93,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, mask_deg, ratio_threshold, min_su
     inp = _named_by_flags(lambda: baseline_inputs(
         job, stations=_parse_named_files(rinex, "--rinex", "NAME") if rinex else None, nav_paths=nav, master=master,
         changes=changes, antenna_types=_parse_antenna_types(antenna, "NAME"), iono_threshold_km=iono_threshold_km,
-        antex=antex), {k: flags[k] for k in changes if k in flags})
+        antex=antex, master_xyz=master_xyz), {k: flags[k] for k in changes if k in flags})
     notes, opt = inp.pop("notes"), inp["options"]
     rover = next(n for n in inp["rinex"] if n != inp["master"])
     _say(ctx, f"baseline {inp['master']} → {rover}: {len(inp['nav_paths'])} navigation file(s), mask {opt.mask_deg:g}°, "
@@ -393,7 +397,7 @@ def simulate_gnss_cmd(ctx, duration_s, rate_hz, seed, start, nav, master, rover,
                    f"[{__import__('cdgps_cli.config.options', fromlist=['x']).MULTI_GNSS_DEFAULTS['hold_after_fixes']}].")
 @click.option("--min-success-rate", type=float, default=None,
               help="Bootstrapped success rate an integer set must reach; when the whole set does not, the part that "
-                   "does is fixed and the epoch stays float [0.999].")
+                   "does is fixed and the epoch stays float (0: the ratio test alone, as RTKLIB) [0.999].")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float solution only; RTKLIB pos2-armode=off).")
 @_time_window_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),

@@ -225,6 +225,15 @@ UNLOCKED_CHANNEL_SHARE = 0.5
 #: RTKLIB's pos2-slipthres)
 GF_SLIP_THRESHOLD_M = 0.05
 UNLOCKED_CHANNEL_MIN_EPOCHS = 20
+#: a receiver channel whose carrier phase (m) runs opposite to its code (a receiver writing the phase with the wrong
+#: sign: gnss-sdr 0.0.19 on a MAX2771 front end did, for some satellites of a run) is left out when, over pairs of its
+#: epochs at least REVERSED_PHASE_LAG_S apart (at least REVERSED_PHASE_MIN_PAIRS of them), the median rate of code minus
+#: phase exceeds REVERSED_PHASE_MIN_RATE_M_S (a right phase: ionospheric divergence, under 0.1 m/s, and code noise; a
+#: reversed one: twice the range rate, up to 1.6 km/s) while the median rate of code plus phase stays below
+#: REVERSED_PHASE_RATIO times it (a reversed phase: the code's noise alone).  Channels near their closest approach
+#: (range rate near 0) give no evidence either way and are kept
+REVERSED_PHASE_LAG_S, REVERSED_PHASE_MIN_PAIRS = 1.0, 10
+REVERSED_PHASE_MIN_RATE_M_S, REVERSED_PHASE_RATIO = 5.0, 0.1
 
 #: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode
 ESTIMATE_DEFAULTS = {

@@ -1035,7 +1035,8 @@ def _a_priori_positions(master: Station, rover: Station, nav, master_xyz, rover_
           else np.asarray(master_xyz, dtype=np.float64))
     if xm is None:
         raise CdgpsError(f"{_where(master)}: the RINEX header has no usable APPROX POSITION XYZ; the master (reference) "
-                         f"receiver must be at a known position")
+                         f"receiver must be at a known position: give its surveyed one (baseline --master-xyz X Y Z, or "
+                         f"position_ecef_m in a job file's [gnss.antennas.<name>])")
     if master_xyz is None:
         _check_master_header(master, nav, xm)
     xr0 = header_position_m(rover.header) if rover_xyz is None else np.asarray(rover_xyz, dtype=np.float64)

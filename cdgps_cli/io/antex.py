@@ -57,9 +57,15 @@ class AntennaModel:
 
 def header_antenna_type(header: dict) -> str | None:
     """A RINEX header's ``ANT # / TYPE`` as an antenna name, or None for a blank or a placeholder (``Unknown``,
-    convbin's empty field, Spirent's ``ant_type``): such a receiver names no antenna."""
+    convbin's empty field, Spirent's ``ant_type``, gnss-sdr's ``Antenna type``): such a receiver names no antenna."""
     typ = " ".join(str(header.get("antenna_type") or "").split())
-    return typ if typ and typ.split()[0].lower() not in ("unknown", "ant_type", "none") else None
+    if not typ or typ.lower() in _PLACEHOLDER_TYPES:
+        return None
+    return typ if typ.split()[0].lower() not in ("unknown", "ant_type", "none") else None
+
+
+#: ``ANT # / TYPE`` texts that fill the field without naming an antenna (gnss-sdr writes the field's label)
+_PLACEHOLDER_TYPES = ("antenna type",)
 
 
 def antenna_key(text: str) -> tuple[str, str]:

@@ -13,8 +13,10 @@ import math
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
+from cdgps_cli.config.limits import check_on_earth
 from cdgps_cli.config.options import IONO_THRESHOLD_KM
 from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
@@ -24,6 +26,7 @@ from cdgps_cli.io.gnss_run import antennas_info, merge_nav
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import read_rinex_obs
+from cdgps_cli.measurement.phase_sign import without_reversed_l1_phases
 from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_antenna_model
@@ -35,12 +38,16 @@ def load_stations(rinex: dict, nav_paths, warnings: list | None = None) -> tuple
     """Read RINEX observation files (``{name: path}``, or ``{name: [paths and quoted glob patterns]}``: a station's
     consecutive files, hourly or daily, joined in time order into one record as ``ingest`` joins them; their joins'
     warnings into ``warnings``) and navigation files into Stations and one ephemeris table (duplicates across
-    files removed)."""
+    files removed); a station's GPS channels whose phase runs opposite to its code lose their phase, a warning naming
+    them (:func:`~cdgps_cli.measurement.phase_sign.without_reversed_l1_phases`)."""
     if not nav_paths:
         raise CdgpsError("no navigation file given (--nav): GPS broadcast ephemerides are needed for satellite positions")
-    stations = {}
+    stations, said = {}, warnings if warnings is not None else []
     for name, path in rinex.items():
-        stations[name] = _read_station(name, path, warnings if warnings is not None else [])
+        st = _read_station(name, path, said)
+        obs, reversed_ = without_reversed_l1_phases(st.obs, f"{st.header.get('path', path)} ({name})")
+        said += reversed_
+        stations[name] = st._replace(obs=obs)
     return stations, merge_nav(nav_paths, ("G",))     # GPS files only; a Galileo-only file beside them is skipped
 
 
@@ -199,7 +206,7 @@ _JOB_KEYS = {
 
 def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), master: str | None = None,
                     changes: dict | None = None, antenna_types: dict | None = None,
-                    iono_threshold_km: float | None = None, antex=None) -> dict:
+                    iono_threshold_km: float | None = None, antex=None, master_xyz=None) -> dict:
     """The arguments of :func:`baseline_from_files`: a job file's (:func:`load_baseline_job`; None: none) with what
     was given beside it on top, as ``cdgps baseline`` takes them.
 
@@ -220,6 +227,9 @@ def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), mas
         ``{station: antenna type or "none"}`` on top of the job's.
     iono_threshold_km, antex : optional
         Instead of the job's (None: the job's, else the default / none).
+    master_xyz : array_like (3,), optional
+        The master's antenna position, ECEF m, instead of the job's or its RINEX header's (checked to be on the
+        Earth).
 
     Returns
     -------
@@ -252,6 +262,9 @@ def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), mas
         raise CdgpsError(f"--master is required: which of {', '.join(rinex)} is the reference at its header position")
     if mst not in rinex:
         raise CdgpsError(f"master {mst!r} is not one of the stations given: {', '.join(rinex)}")
+    if master_xyz is not None:
+        check_on_earth(master_xyz, "--master-xyz")
+        positions[mst] = np.asarray(master_xyz, dtype=np.float64)
     opt = dataclasses.replace(got["options"], **(changes or {}))
     opt.validate()
     types.update(antenna_types or {})

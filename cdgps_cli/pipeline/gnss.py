@@ -53,7 +53,8 @@ from cdgps_cli.estimation.baseline import (BaselineOptions, Station, baseline_fr
 from cdgps_cli.estimation.model_filter import filter_numpy
 from cdgps_cli.estimation.smoother import rts_smooth_indexed
 from cdgps_cli.measurement.dd_displacement import SatelliteDDDisplacement, SDObservations
-from cdgps_cli.measurement.slips import without_unlocked_channels
+from cdgps_cli.measurement.channel_screen import without_unusable_channels
+from cdgps_cli.measurement.phase_sign import without_reversed_l1_phases
 from cdgps_cli.model.dynamics_models import RandomWalk
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
@@ -84,7 +85,8 @@ GNSS_CONFIG_ATTACHMENT = "gnss_config.toml"
 
 def _stations(run: GnssRun, notes: dict | None = None):
     """The solvers' :class:`Station` of every receiver of the run; a multi-signal run's tables less their channels
-    that carry no phase (:func:`~cdgps_cli.measurement.slips.without_unlocked_channels`), as `rtk` reads them, with
+    that carry no usable phase (:func:`~cdgps_cli.measurement.channel_screen.without_unusable_channels`), as `rtk`
+    reads them, with
     the warnings naming them in ``notes[receiver]``."""
     if len(run.nav) == 0:
         raise CdgpsError(f"{run.path}: the run has no broadcast ephemerides; ingest it again with --nav NAVFILE "
@@ -96,12 +98,16 @@ def _stations(run: GnssRun, notes: dict | None = None):
     stations = {}
     for n in run.receivers:
         rx = run_receiver(run, n)
-        table, said = without_unlocked_channels(signal_obs(rx) if sigs else None, f"{rx.file} ({n})")
+        table, said = without_unusable_channels(signal_obs(rx) if sigs else None, f"{rx.file} ({n})")
+        obs = anchor_obs(rx, sigs)
+        if not sigs:                       # GPS L1 alone: its phases are the observations
+            obs, l1_said = without_reversed_l1_phases(obs, f"{rx.file} ({n})")
+            said = said + l1_said
         if notes is not None:
             notes[n] = said
         # a position the run holds (the config's, ingest's single-point one) is named as the solvers' a-priori source
         given = {"given_position_source": rx.info.get("position_source")} if _position_args(run, n) is not None else {}
-        stations[n] = Station(n, dict(rx.header, path=rx.file, **given), anchor_obs(rx, sigs), table)
+        stations[n] = Station(n, dict(rx.header, path=rx.file, **given), obs, table)
     return stations
 
 

@@ -30,7 +30,8 @@ from cdgps_cli.core.signals import AUTO_SYSTEMS, SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             reported_positions, solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
-from cdgps_cli.measurement.slips import unflagged_slip_text, without_unlocked_channels
+from cdgps_cli.measurement.channel_screen import without_unusable_channels
+from cdgps_cli.measurement.slips import unflagged_slip_text
 from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
@@ -109,8 +110,9 @@ def validate_options(options: dict) -> dict:
     if not 0.0 <= float(opt["wrong_fix_probability"]) < 1.0:
         bad.append(f"wrong_fix_probability: expected a probability in [0, 1) (0: no wrong-fix test), "
                    f"got {opt['wrong_fix_probability']}")
-    if not 0.0 < float(opt["min_success_rate"]) < 1.0:
-        bad.append(f"min_success_rate: expected a probability in (0, 1), got {opt['min_success_rate']}")
+    if not 0.0 <= float(opt["min_success_rate"]) < 1.0:
+        bad.append(f"min_success_rate: expected a probability in [0, 1) (0: the ratio test alone), "
+                   f"got {opt['min_success_rate']}")
     for s in (() if opt["signals"] == "auto" else opt["signals"]):
         if s not in SIGNALS:
             bad.append(f"signals: unknown signal {s!r} (known: {', '.join(SIGNALS)})")
@@ -236,14 +238,24 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                          f"this output is not one (its suffix is not .pos)")
     _refuse_a_format_not_written(out_csv)
     pair = _read_pair(base_path, rover_path, nav_paths, opt)
+    try:
+        return _rtk_from_pair(pair, out_csv, opt, base_xyz_m)
+    except CdgpsError as exc:
+        if not pair.screened:
+            raise
+        raise CdgpsError(f"{exc} (channels left out before: {'; '.join(pair.screened)})") from None
+
+
+def _rtk_from_pair(pair: SimpleNamespace, out_csv, opt: dict, base_xyz_m) -> dict:
+    """:func:`rtk_from_files` once the pair is read (:func:`_read_pair`)."""
     b, r, hb, hr, nav, warnings = pair.b, pair.r, pair.hb, pair.hr, pair.nav, pair.warnings
     base_path, rover_path, nav_paths = pair.base_path, pair.rover_path, pair.nav_paths
     # the base first: a rover without a position is placed by single-point positioning started at the base
     bx = _base_antenna(hb, base_xyz_m, base_path)
     if base_xyz_m is None:
-        _check_base_header(bx, b, nav, base_path)
+        _check_base_header(bx, pair.codes[0], nav, base_path)
     warnings += rover_delta_note(hr, f"{rover_path} (rover)")
-    rx, rx_from_spp = _rover_origin(hr, r, nav, bx, rover_path, warnings)
+    rx, rx_from_spp = _rover_origin(hr, pair.codes[1], nav, bx, rover_path, warnings)
     ant = _antenna_models(opt, {"base": hb, "rover": hr}, {"base": base_path, "rover": rover_path}, warnings)
     gb, gr = (_geometry(df, nav, xyz, path, who, nav_paths, ant[who]) for df, xyz, path, who in
               ((b, bx, base_path, "base"), (r, rx, rover_path, "rover")))
@@ -318,15 +330,20 @@ def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
     _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
         raise nav_error
-    b, r = (_without_unlocked_channels(_first_of_repeated_epochs(df, path, who, warnings), path, who, warnings)
+    screened: list = []
+    b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"),
+                                                                                     (r, rover_path, "rover")))
+    codes = (b, r)          # single-point positions take every code, a channel left out for its phase too
+    b, r = (_without_unusable_channels(df, path, who, screened)
             for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
+    warnings += screened
     if auto:                # a header may list a signal its records never hold: 'auto' keeps those both files observe
         sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
         opt["signals"] = tuple(sigs)
     check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
     return SimpleNamespace(b=b, r=r, hb=hb, hr=hr, nav=nav, nav_paths=nav_paths, sigs=sigs, base_files=base_files,
                            rover_files=rover_files, base_path=base_path, rover_path=rover_path, n_outside=n_outside,
-                           warnings=warnings)
+                           warnings=warnings, screened=screened, codes=codes)
 
 
 def _solution_warnings(res: dict, ep: dict, opt: dict, rover_path) -> list:
@@ -367,7 +384,8 @@ def _base_antenna(header: dict, base_xyz_m, base_path) -> np.ndarray:
     bx = np.asarray(base_xyz_m if base_xyz_m is not None else header["approx_position_xyz_m"] or (), dtype=float)
     if bx.shape != (3,):
         raise CdgpsError(f"{base_path}: the base has no position (no APPROX POSITION XYZ; give --base-xyz X Y Z)")
-    _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ")
+    _check_position(bx, f"{base_path} (base)", "--base-xyz" if base_xyz_m is not None else "its APPROX POSITION XYZ",
+                    "" if base_xyz_m is not None else "; give the base's surveyed position with --base-xyz X Y Z")
     return bx if base_xyz_m is not None else antenna_reference_point_m(header, f"{base_path} (base)")
 
 
@@ -586,12 +604,12 @@ def _velocity_columns(vel) -> dict:
 _GEOCENTRIC_RANGE_M = GEOCENTRIC_RANGE_M          # one home: config/limits.py
 
 
-def _check_position(xyz, who: str, source: str) -> None:
+def _check_position(xyz, who: str, source: str, fix: str = "") -> None:
     r = float(np.linalg.norm(xyz))
     if not (np.all(np.isfinite(xyz)) and _GEOCENTRIC_RANGE_M[0] <= r <= _GEOCENTRIC_RANGE_M[1]):
         raise CdgpsError(f"{who}: position from {source} is {' '.join(f'{v:g}' for v in xyz)} m, {r / 1e3:.1f} km from the "
                          f"Earth's centre; expected an ECEF position on the Earth ({_GEOCENTRIC_RANGE_M[0] / 1e3:.0f}–"
-                         f"{_GEOCENTRIC_RANGE_M[1] / 1e3:.0f} km)")
+                         f"{_GEOCENTRIC_RANGE_M[1] / 1e3:.0f} km){fix}")
 
 
 def _rover_origin(header: dict, obs: pd.DataFrame, nav, base_xyz, path, warnings: list) -> np.ndarray:
@@ -1134,9 +1152,10 @@ def recorded_signals(rinex: dict, sigs: list, warnings: list) -> list[str]:
     return keep
 
 
-def _without_unlocked_channels(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
-    """:func:`~cdgps_cli.measurement.slips.without_unlocked_channels` of a receiver, its warning added."""
-    kept, notes = without_unlocked_channels(df, f"{path} ({who})")
+def _without_unusable_channels(df: pd.DataFrame, path, who: str, warnings: list) -> pd.DataFrame:
+    """:func:`~cdgps_cli.measurement.channel_screen.without_unusable_channels` of a receiver (its unlocked channels
+    and those of reversed phase), its warnings added."""
+    kept, notes = without_unusable_channels(df, f"{path} ({who})")
     warnings += notes
     return kept
 

@@ -128,7 +128,19 @@ def _doppler_range_rate_m_s(ln: str, codes: list, sat: str, slots: dict) -> floa
     raise CdgpsError(f"code_clock_s: {sat} has no Doppler in its record '{ln[:40]}…' to move its ranges by")
 
 
-def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m=None, code_clock_s=None) -> str:
+def _phase_negated(ln: str, codes: list) -> str:
+    """One satellite line with its carrier phases (L) and Dopplers (D) written with the wrong sign."""
+    out = list(ln.ljust(3 + 16 * len(codes)))
+    for k, code in enumerate(codes):
+        a = 3 + 16 * k
+        field = "".join(out[a:a + 14])
+        if field.strip() and code[0] in "LD":
+            out[a:a + 14] = f"{-float(field):14.3f}"
+    return "".join(out).rstrip()
+
+
+def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m=None, code_clock_s=None,
+                    phase_negated=()) -> str:
     """Edit a RINEX 3 observation file's text (module docstring).
 
     Parameters
@@ -147,6 +159,9 @@ def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m
         tag do not (a receiver whose carrier stays continuous when its clock is reset by a millisecond): the
         signals were received δ earlier than tagged, so every pseudorange and phase takes the range change over δ
         (−ρ̇ δ, ρ̇ from the satellite's first Doppler in the line) and every pseudorange c·δ more.
+    phase_negated : collection of str, optional
+        Satellites (``"G05"``) whose carrier phases and Dopplers are written with the wrong sign, as a receiver with
+        that defect writes them (gnss-sdr 0.0.19 did for some satellites; measurement/phase_sign).
 
     Returns
     -------
@@ -191,7 +206,8 @@ def edit_rinex3_obs(text: str, *, keep=None, clock_offset_s=None, range_change_m
             dr = dr - d * np.array([_doppler_range_rate_m_s(b, types.get(s[0], []), s, slots)
                                     for b, s in zip(body, sats)])
         out.append(ln)
-        out += [_shift_record(b, types.get(s[0], []), s, slots, float(r), code_m) for b, s, r in zip(body, sats, dr)]
+        body = [_shift_record(b, types.get(s[0], []), s, slots, float(r), code_m) for b, s, r in zip(body, sats, dr)]
+        out += [_phase_negated(b, types.get(s[0], [])) if s in phase_negated else b for b, s in zip(body, sats)]
     return "\n".join(out) + "\n"
 
 

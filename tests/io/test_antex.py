@@ -131,3 +131,18 @@ def test_bad_files_are_named_with_their_line(tmp_path, atx):
     bad.write_text("\n".join(lines[:k - 1]) + "\n")                          # only the satellite's entry
     with pytest.raises(CdgpsError, match=r"bad.atx: holds no receiver antenna type calibration"):
         read_antex(bad)
+
+
+def test_placeholder_antenna_fields_name_no_antenna():
+    """``ANT # / TYPE`` fields that fill the field without naming an antenna (blank, ``Unknown``, Spirent's
+    ``ant_type``, gnss-sdr's ``Antenna type``) name none, so no "the antennas differ" warning is built on them."""
+    from cdgps_cli.io.antex import header_antenna_type  # noqa: PLC0415
+    from cdgps_cli.pipeline.antenna_models import mixed_antennas_note  # noqa: PLC0415
+
+    for text in ("", "   ", "Unknown", "ant_type", "Antenna type", "ANTENNA  TYPE", "none"):
+        assert header_antenna_type({"antenna_type": text}) is None, text
+    assert header_antenna_type({"antenna_type": "TRM59800.80     SCIT"}) == "TRM59800.80 SCIT"
+    headers = {"base": {"antenna_type": "ADVNULLANTENNA"}, "rover": {"antenna_type": "Antenna type"}}
+    assert mixed_antennas_note(headers, {"base": "b.obs", "rover": "r.obs"}) == []
+    headers["rover"]["antenna_type"] = "TRM59800.80 SCIT"
+    assert len(mixed_antennas_note(headers, {"base": "b.obs", "rover": "r.obs"})) == 1

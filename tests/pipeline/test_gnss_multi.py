@@ -424,3 +424,16 @@ def test_a_moving_rover_is_placed_at_its_code_mean_and_static_mode_is_refused(tm
     assert s_kin["fixed_pct"] > 95.0
     s, w = run(still, "static")
     assert "its static float solution" in w and "the rover moves" not in w and s["fixed_pct"] > 95.0
+
+
+def test_min_success_rate_0_is_the_ratio_test_alone_as_baseline_takes_it():
+    """``rtk --min-success-rate 0`` (RTKLIB's criterion: the ratio test alone) is taken, as ``baseline`` takes it;
+    1 and negative rates are refused naming the key."""
+    from cdgps_cli.estimation.baseline import BaselineOptions  # noqa: PLC0415
+    from cdgps_cli.pipeline.gnss_multi import validate_options  # noqa: PLC0415
+
+    assert validate_options({"min_success_rate": 0.0})["min_success_rate"] == 0.0
+    BaselineOptions(min_success_rate=0.0).validate()
+    for bad in (1.0, -0.1):
+        with pytest.raises(CdgpsError, match=r"min_success_rate: expected a probability in \[0, 1\)"):
+            validate_options({"min_success_rate": bad})
