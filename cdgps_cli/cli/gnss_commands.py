@@ -437,7 +437,7 @@ def rtk(ctx, base_file, rover_file, nav_files, signals, mode, base_xyz, glonass_
     for w in s["warnings"]:
         _warn(w)
     ep = s["epoch_pairing"]
-    _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged across base gaps, "
+    _say(ctx, f"{output}: {s['epochs']} of {ep['rover_epochs']} rover epochs ({ep['bridged']} bridged to a base epoch up to --max-age away, "
               f"{ep.get('interpolated', 0)} of them interpolated, max age {ep['max_age_s']:.3g} s), fixed {s['fixed_pct']:.1f} % ({s['direction']}; "
               f"{s['fixes_rejected']} fixes rejected where the passes disagree, {s['wrong_fix_resets']} held fixes reset, "
               f"{s['ambiguities_released']} single ambiguities released), ionosphere {s['iono_model']}, "

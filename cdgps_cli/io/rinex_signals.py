@@ -253,17 +253,23 @@ def _plain_header(path) -> tuple[bytes, bool] | None:
 
 
 def _receiver_attributes(files: list, signals) -> dict:
-    """{signal: the attributes every one of a receiver's files lists (None: none of them says, RINEX 2)}; ``files``:
-    [(kind, path, read or None)], ``"ubx"`` logs by :data:`~cdgps_cli.io.ubx.UBX_ATTRIBUTES`."""
+    """{signal: the attributes every one of a receiver's files that lists the signal lists (None: none of them says,
+    RINEX 2; "": none lists it)}; ``files``: [(kind, path, read or None)], ``"ubx"`` logs by
+    :data:`~cdgps_cli.io.ubx.UBX_ATTRIBUTES`.  (A file without the signal's types at all does not narrow it: a
+    receiver whose systems are in files of their own, as gnss-sdr writes them.)"""
     from cdgps_cli.io.ubx import UBX_ATTRIBUTES  # noqa: PLC0415
 
     out: dict = {s: None for s in signals}
+    listed: set = set()
     for kind, path, read in files:
         held = ({s: UBX_ATTRIBUTES.get(s) for s in signals} if kind == "ubx"
                 else phase_attributes_in_file(path, signals, read))
         for s, a in held.items():
-            if a is not None:
-                out[s] = a if out[s] is None else "".join(c for c in out[s] if c in a)
+            if a == "" and len(files) > 1:
+                out[s] = "" if out[s] is None and s not in listed else out[s]
+            elif a is not None:
+                out[s] = a if out[s] is None or s not in listed else "".join(c for c in out[s] if c in a)
+                listed.add(s)
     return out
 
 

@@ -900,6 +900,9 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list,
     if len(files) == 1:
         return _read_observations(files[0], sigs, glo_k, who, warnings, attributes)
     ubx = all(is_ubx_log(p) for p in files)
+    split = None if any(is_ubx_log(p) for p in files) else _signals_by_file(files, sigs)
+    if split is not None:
+        return _merged_systems(files, split, glo_k, who, warnings, attributes)
     said: list = []               # consecutive u-blox logs are decoded again as one stream (below): not their pieces'
     reads = [_read_observations(p, sigs, glo_k, who, said, attributes) for p in files]
     tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
@@ -920,6 +923,45 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list,
     tab.attrs = {}
     joined = _joined_file_epochs([h for h, _ in reads])
     return {**reads[order[0]][0], "file_epochs": None if joined is None else int(joined.t.size),
+            "file_epoch_times": joined}, tab
+
+
+def _signals_by_file(files: list, sigs) -> list | None:
+    """The signals of ``sigs`` each RINEX file of a receiver lists, when the files hold them system by system (no
+    system in two files, every file some): one receiver's observations written a file per system, as gnss-sdr
+    writes them; None otherwise (consecutive files, each read with every signal)."""
+    from cdgps_cli.io.rinex_signals import signals_in_file  # noqa: PLC0415
+
+    held = [[x for x in sigs if x in set(signals_in_file(p))] for p in files]
+    systems = [{signal(x).system for x in h} for h in held]
+    if any(not h for h in held) or len(set().union(*systems)) != sum(len(x) for x in systems) or len(files) < 2:
+        return None
+    return held
+
+
+def _merged_systems(files: list, split: list, glo_k, who: str, warnings: list,
+                    attributes: dict | None) -> tuple[dict, pd.DataFrame]:
+    """A receiver's header and signal table from its files of one system each (:func:`_signals_by_file`): each read
+    with its own signals, their rows merged epoch by epoch (in time order, the files' order within an epoch); the
+    header of the first file, its epochs those of every file.  CdgpsError when the files do not cover one span (a
+    file per system is written over the same time) or are not of one receiver."""
+    reads = [_read_observations(p, sub, glo_k, who, warnings, attributes) for p, sub in zip(files, split)]
+    spans = [time_span(df["time_gps_s"].to_numpy()) for _, df in reads]
+    if any(sp is None for sp in spans) or max(sp[0] for sp in spans) > min(sp[1] for sp in spans):
+        raise CdgpsError(f"{pieces_text(files)} ({who}): each file holds other systems ("
+                         + "; ".join(f"{p}: {', '.join(sub)}" for p, sub in zip(files, split))
+                         + ") but their spans do not meet: a receiver's files of one system each cover the same time")
+    refuse_another_receiver(who, [h for h, _ in reads], files, tuple(f for f in ONE_RECEIVER_FIELDS
+                                                                    if f != "signal_codes"))
+    tab = pd.concat([df for _, df in reads], ignore_index=True)
+    tab = tab.iloc[np.argsort(tab["time_gps_s"].to_numpy(), kind="stable")].reset_index(drop=True)
+    tab.attrs = {}
+    warnings.append(f"{pieces_text(files)} ({who}): one receiver's systems in files of their own ("
+                    + "; ".join(f"{Path(str(p)).name}: {', '.join(sub)}" for p, sub in zip(files, split))
+                    + "): merged epoch by epoch")
+    joined = _joined_file_epochs([h for h, _ in reads])
+    codes = {k: v for h, _ in reads for k, v in (h.get("signal_codes") or {}).items()}
+    return {**reads[0][0], "signal_codes": codes, "file_epochs": None if joined is None else int(joined.t.size),
             "file_epoch_times": joined}, tab
 
 

@@ -1,0 +1,92 @@
+"""A receiver's systems in files of their own (gnss-sdr writes a RINEX file per system): ``rtk --rover G.obs
+--rover E.obs`` merges them epoch by epoch (pipeline/gnss_multi._merged_systems).  Checked on the real mosaic-X5
+rover split into a GPS file and a Galileo file by hand: the same solution, byte for byte, as the whole file; files
+whose spans do not meet are refused naming them; files of one system each that repeat epochs stay consecutive
+pieces."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests._shared import MOSAIC_DIR, run_cli
+
+
+def _only(text: str, system: str) -> str:
+    """A RINEX 3 observation file's text with the records of one system (its header's other systems' type lines
+    dropped, each epoch's satellite count set to what is left)."""
+    lines = text.splitlines()
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
+    head, out, cur = [], [], None
+    for ln in lines[:end + 1]:
+        if ln[60:].strip() == "SYS / # / OBS TYPES":
+            cur = ln[0] if ln[0] != " " else cur
+            if cur != system:
+                continue
+        head.append(ln)
+    i = end + 1
+    while i < len(lines):
+        n = int(lines[i][32:35])
+        body = [b for b in lines[i + 1:i + 1 + n] if b[0] == system]
+        out += [lines[i][:32] + f"{len(body):3d}" + lines[i][35:], *body]
+        i += 1 + n
+    return "\n".join(head + out) + "\n"
+
+
+def _rtk(d, name, *rover):
+    out = d / f"{name}.pos"
+    args = ["-q", "rtk", "--base", MOSAIC_DIR / "base.obs", "--nav", MOSAIC_DIR / "base.nav", "--signals", "G:L1,E:E1",
+            "-o", out, "--json"]
+    for r in rover:
+        args += ["--rover", r]
+    r = run_cli(*args)
+    return r, out
+
+
+@pytest.fixture(scope="module")
+def split(tmp_path_factory):
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    d = tmp_path_factory.mktemp("per_system")
+    text = (MOSAIC_DIR / "rover.obs").read_text()
+    (d / "rover_g.obs").write_text(_only(text, "G"))
+    (d / "rover_e.obs").write_text(_only(text, "E"))
+    return d
+
+
+def test_a_file_per_system_is_the_whole_file(split):
+    d = split
+    whole, whole_pos = _rtk(d, "whole", MOSAIC_DIR / "rover.obs")
+    parts, parts_pos = _rtk(d, "parts", d / "rover_g.obs", d / "rover_e.obs")
+    assert whole.exit_code == 0 and parts.exit_code == 0, parts.output
+    assert "one receiver's systems in files of their own (rover_g.obs: G:L1; rover_e.obs: E:E1)" in parts.output
+    body = lambda p: [ln for ln in p.read_text().splitlines() if not ln.startswith("%")]   # noqa: E731
+    assert body(parts_pos) == body(whole_pos)
+    s = json.loads(parts.output[parts.output.index("{"):])
+    assert s["signals"] == ["G:L1", "E:E1"] and s["epochs"] == 301
+    auto, _ = run_cli("-q", "rtk", "--base", MOSAIC_DIR / "base.obs", "--nav", MOSAIC_DIR / "base.nav", "--rover",
+                      d / "rover_g.obs", "--rover", d / "rover_e.obs", "-o", d / "auto.pos", "--json"), None
+    assert auto.exit_code == 0 and {"G:L1", "E:E1"} <= set(json.loads(auto.output[auto.output.index("{"):])["signals"])
+
+
+def _epochs(text: str, keep) -> str:
+    """A RINEX 3 observation file's text with the epochs whose index ``keep(k)`` says (its header as it is)."""
+    lines = text.splitlines()
+    i = next(k for k, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    out, k = lines[:i], 0
+    while i < len(lines):
+        n = int(lines[i][32:35])
+        if keep(k):
+            out += lines[i:i + 1 + n]
+        i, k = i + 1 + n, k + 1
+    return "\n".join(out) + "\n"
+
+
+def test_files_of_one_system_each_whose_spans_do_not_meet_are_refused(split):
+    d = split
+    (d / "rover_g_early.obs").write_text(_epochs((d / "rover_g.obs").read_text(), lambda k: k < 100))
+    (d / "rover_e_late.obs").write_text(_epochs((d / "rover_e.obs").read_text(), lambda k: k >= 200))
+    r, out = _rtk(d, "apart", d / "rover_g_early.obs", d / "rover_e_late.obs")
+    assert r.exit_code == 2 and "their spans do not meet" in r.output and "rover_g_early.obs: G:L1" in r.output
+    assert not out.exists()
