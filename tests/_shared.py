@@ -97,3 +97,23 @@ def write_gappy_mosaic_pair(d, base_name: str = "base_gappy.obs", rover_name: st
     (d / rover_name).write_text(edit_rinex3_obs(rover, clock_offset_s=lambda t: -0.009 + 0.001 * ((round(t) // 5) % 2)))
     return d / base_name, d / rover_name
 
+
+def one_system_rinex3(text: str, system: str, header_too: bool = True) -> str:
+    """A RINEX 3 observation file's text with the records (and, ``header_too``, the observation types) of
+    ``system`` alone (the epoch lines' satellite counts set to what is left)."""
+    lines = text.splitlines()
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
+    head, keep = [], True
+    for ln in lines[:end + 1]:
+        if header_too and ln[60:].strip() == "SYS / # / OBS TYPES":
+            keep = ln[0] == system if ln[0] != " " else keep        # a continuation line follows its system
+            if not keep:
+                continue
+        head.append(ln)
+    body, i = [], end + 1
+    while i < len(lines):
+        n = int(lines[i][32:35])
+        recs = [r for r in lines[i + 1:i + 1 + n] if r[0] == system]
+        body += [lines[i][:32] + f"{len(recs):3d}" + lines[i][35:], *recs]
+        i += 1 + n
+    return "\n".join(head + body) + "\n"

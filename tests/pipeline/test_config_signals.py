@@ -6,7 +6,7 @@ import tomllib
 
 import pytest
 
-from tests._shared import REPO_ROOT, run_cli
+from tests._shared import one_system_rinex3, REPO_ROOT, run_cli
 
 SHARED = REPO_ROOT.parent / "shared" / "data"
 MOSAIC = SHARED / "real-pairs" / "mosaic-static"
@@ -59,33 +59,12 @@ def test_a_glonass_only_run_goes_through_init_float(tmp_path):
     assert rov["solution"] == "float" and rov["n_fixed"] == 0
 
 
-def _one_system(text: str, system: str, header_too: bool = True) -> str:
-    """A RINEX 3 observation file's text with the records (and, ``header_too``, the observation types) of
-    ``system`` alone (the epoch lines' satellite counts set to what is left)."""
-    lines = text.splitlines()
-    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
-    head, keep = [], True
-    for ln in lines[:end + 1]:
-        if header_too and ln[60:].strip() == "SYS / # / OBS TYPES":
-            keep = ln[0] == system if ln[0] != " " else keep        # a continuation line follows its system
-            if not keep:
-                continue
-        head.append(ln)
-    body, i = [], end + 1
-    while i < len(lines):
-        n = int(lines[i][32:35])
-        recs = [r for r in lines[i + 1:i + 1 + n] if r[0] == system]
-        body += [lines[i][:32] + f"{len(recs):3d}" + lines[i][35:], *recs]
-        i += 1 + n
-    return "\n".join(head + body) + "\n"
-
-
 def test_a_galileo_only_pair_gets_a_config_that_init_fixes(tmp_path):
     """Files holding Galileo alone (no GPS observation type in their headers): config wrote nothing ("GPS L1
     carrier phase is needed", from reading the GPS L1 table for its comments); the run's signals say what is
     needed, with ``--signals`` as with ``auto``."""
     for who in ("base", "rover"):
-        (tmp_path / f"{who}.obs").write_text(_one_system((MOSAIC / f"{who}.obs").read_text(), "E"))
+        (tmp_path / f"{who}.obs").write_text(one_system_rinex3((MOSAIC / f"{who}.obs").read_text(), "E"))
     files = ("--rinex", f"base={tmp_path / 'base.obs'}", "--rinex", f"rover={tmp_path / 'rover.obs'}",
              "--nav", MOSAIC / "base.nav")
     for extra, name in (((), "auto.toml"), (("--signals", "E:E1,E:E5a"), "given.toml")):
@@ -105,7 +84,7 @@ def test_auto_leaves_out_the_signals_a_header_lists_but_no_record_holds(tmp_path
     """Headers listing every system, records of GPS alone: ``config`` wrote the headers' signals and ``ingest``
     refused the run ("no E:E1 … phase observations"); the signals no record holds are now left out, each named."""
     for who in ("base", "rover"):
-        (tmp_path / f"{who}.obs").write_text(_one_system((MOSAIC / f"{who}.obs").read_text(), "G", header_too=False))
+        (tmp_path / f"{who}.obs").write_text(one_system_rinex3((MOSAIC / f"{who}.obs").read_text(), "G", header_too=False))
     r = run_cli("config", "--rinex", f"base={tmp_path / 'base.obs'}", "--rinex", f"rover={tmp_path / 'rover.obs'}",
                 "--nav", MOSAIC / "base.nav", "-o", tmp_path / "c.toml")
     assert r.exit_code == 0, r.output

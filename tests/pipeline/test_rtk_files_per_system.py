@@ -10,28 +10,7 @@ import json
 
 import pytest
 
-from tests._shared import MOSAIC_DIR, run_cli
-
-
-def _only(text: str, system: str) -> str:
-    """A RINEX 3 observation file's text with the records of one system (its header's other systems' type lines
-    dropped, each epoch's satellite count set to what is left)."""
-    lines = text.splitlines()
-    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER")
-    head, out, cur = [], [], None
-    for ln in lines[:end + 1]:
-        if ln[60:].strip() == "SYS / # / OBS TYPES":
-            cur = ln[0] if ln[0] != " " else cur
-            if cur != system:
-                continue
-        head.append(ln)
-    i = end + 1
-    while i < len(lines):
-        n = int(lines[i][32:35])
-        body = [b for b in lines[i + 1:i + 1 + n] if b[0] == system]
-        out += [lines[i][:32] + f"{len(body):3d}" + lines[i][35:], *body]
-        i += 1 + n
-    return "\n".join(head + out) + "\n"
+from tests._shared import MOSAIC_DIR, one_system_rinex3, run_cli
 
 
 def _rtk(d, name, *rover):
@@ -50,8 +29,8 @@ def split(tmp_path_factory):
         pytest.skip("../shared/data/real-pairs absent")
     d = tmp_path_factory.mktemp("per_system")
     text = (MOSAIC_DIR / "rover.obs").read_text()
-    (d / "rover_g.obs").write_text(_only(text, "G"))
-    (d / "rover_e.obs").write_text(_only(text, "E"))
+    (d / "rover_g.obs").write_text(one_system_rinex3(text, "G"))
+    (d / "rover_e.obs").write_text(one_system_rinex3(text, "E"))
     return d
 
 
