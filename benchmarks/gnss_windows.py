@@ -106,7 +106,7 @@ def pair(workdir: Path, hours: float, window_s: float, whole: bool, windows: boo
                     f"states{tag}-joined.mcap"], cwd=d)
         rec["stages"]["estimate, joined windows"] = r
         _say(hours, "estimate, joined", r)
-    rec["run_mcap_mib"] = round((d / "run.mcap").stat().st_size / 2**20, 1)
+    rec["run_mcap_mib"] = round((d / f"run{tag}.mcap").stat().st_size / 2**20, 1)
     return rec
 
 
