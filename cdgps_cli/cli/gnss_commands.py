@@ -79,7 +79,7 @@ def baseline_cmd(ctx, job, rinex, nav, master, master_xyz, mask_deg, ratio_thres
                  as_json):
     """Static baseline from two receivers' RINEX L1 phase: float, LAMBDA integers, fixed → JSON."""
     from cdgps_cli.estimation.baseline import format_summary, json_safe
-    from cdgps_cli.pipeline.baseline_job import baseline_from_files, baseline_inputs
+    from cdgps_cli.pipeline.baseline_job import baseline_from_files, baseline_inputs, load_baseline_job
 
     window = _time_window(start_time, end_time)
     changes = {k: v for k, v in (("mask_deg", mask_deg), ("ratio_threshold", ratio_threshold),
@@ -90,8 +90,9 @@ def baseline_cmd(ctx, job, rinex, nav, master, master_xyz, mask_deg, ratio_thres
                                              ("troposphere", no_troposphere, False)) if flag})
     flags = {"mask_deg": "--mask-deg", "ratio_threshold": "--ratio", "max_age_s": "--max-age", "weighting": "--weighting",
              "min_success_rate": "--min-success-rate"}
+    loaded = load_baseline_job(job) if job else None        # (its errors name its keys, not the flags)
     inp = _named_by_flags(lambda: baseline_inputs(
-        job, stations=_parse_named_files(rinex, "--rinex", "NAME") if rinex else None, nav_paths=nav, master=master,
+        loaded, stations=_parse_named_files(rinex, "--rinex", "NAME") if rinex else None, nav_paths=nav, master=master,
         changes=changes, antenna_types=_parse_antenna_types(antenna, "NAME"), iono_threshold_km=iono_threshold_km,
         antex=antex, master_xyz=master_xyz), {k: flags[k] for k in changes if k in flags})
     notes, opt = inp.pop("notes"), inp["options"]

@@ -230,9 +230,10 @@ UNLOCKED_CHANNEL_MIN_EPOCHS = 20
 #: epochs at least REVERSED_PHASE_LAG_S apart (at least REVERSED_PHASE_MIN_PAIRS of them), the median rate of code minus
 #: phase exceeds REVERSED_PHASE_MIN_RATE_M_S (a right phase: ionospheric divergence, under 0.1 m/s, and code noise; a
 #: reversed one: twice the range rate, up to 1.6 km/s) while the median rate of code plus phase stays below
-#: REVERSED_PHASE_RATIO times it (a reversed phase: the code's noise alone).  Channels near their closest approach
-#: (range rate near 0) give no evidence either way and are kept
-REVERSED_PHASE_LAG_S, REVERSED_PHASE_MIN_PAIRS = 1.0, 10
+#: REVERSED_PHASE_RATIO times it (a reversed phase: the code's noise alone), both rates taken about the receiver's
+#: common code–carrier drift (measurement/phase_sign).  Channels near their closest approach (range rate near 0) give
+#: no evidence either way and are kept.  (5 pairs: 5 s at 1 Hz, 2.5 min at 30 s)
+REVERSED_PHASE_LAG_S, REVERSED_PHASE_MIN_PAIRS = 1.0, 5
 REVERSED_PHASE_MIN_RATE_M_S, REVERSED_PHASE_RATIO = 5.0, 0.1
 
 #: `cdgps estimate` (:class:`cdgps_cli.estimation.filter.EstimateOptions`): integrity tests and static mode

@@ -5,10 +5,13 @@ opposite to their code (:func:`~cdgps_cli.measurement.phase_sign.without_reverse
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
+from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.measurement.phase_sign import without_reversed_phases
 from cdgps_cli.measurement.slips import without_unlocked_channels
 
-__all__ = ["without_unusable_channels"]
+__all__ = ["without_unusable_channels", "naming_screened"]
 
 
 def without_unusable_channels(table, where: str):
@@ -17,3 +20,16 @@ def without_unusable_channels(table, where: str):
     table, unlocked = without_unlocked_channels(table, where)
     table, reversed_ = without_reversed_phases(table, where)
     return table, unlocked + reversed_
+
+
+@contextmanager
+def naming_screened(screened: list):
+    """A CdgpsError raised inside (no phase, no common signal or satellite, no single-point position …) with the
+    warnings of the channels left out before (``screened``) added: what a file seems to lack may be what the screen
+    took out of it."""
+    try:
+        yield
+    except CdgpsError as exc:
+        if not screened:
+            raise
+        raise CdgpsError(f"{exc} (channels left out before: {'; '.join(screened)})") from None

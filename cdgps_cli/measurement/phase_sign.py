@@ -31,6 +31,16 @@ def reversed_phase_channels(channel, time_s, phase_m, code_m, *, lag_s: float = 
                             ratio: float = REVERSED_PHASE_RATIO) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Channels whose carrier phase runs opposite to their code.
 
+    Each row is paired with its channel's first row at least ``lag_s`` later; over a channel's pairs, u = Δ(code −
+    phase)/Δt and v = Δ(code + phase)/Δt.  A right channel's u is the receiver's common code–carrier drift D (0 for a
+    sound receiver; gnss-sdr has written records whose code and phase part at a rate common to every channel) and its
+    v twice its range rate; a reversed channel's v is D and its u twice its range rate.  D is the value that the
+    most channels' median u or median v lie within ``min_rate_m_s`` of (0 when that is within ``min_rate_m_s`` of 0):
+    it needs no majority of right channels.  A channel of at least ``min_pairs`` pairs is reversed when the median of
+    |u − D| exceeds ``min_rate_m_s`` and the median of |v − D| is below ``ratio`` times it
+    (:data:`~cdgps_cli.config.options.REVERSED_PHASE_LAG_S` and the others).  Channel by channel: the memory beyond
+    the sort is one channel's.
+
     Parameters
     ----------
     channel : ndarray of int (N,)
@@ -40,45 +50,63 @@ def reversed_phase_channels(channel, time_s, phase_m, code_m, *, lag_s: float = 
     phase_m, code_m : ndarray (N,)
         Carrier phase × wavelength and pseudorange, m (NaN: none).
     lag_s, min_pairs, min_rate_m_s, ratio : float, int, float, float
-        Each row is paired with its channel's first row at least ``lag_s`` later; a channel of at least ``min_pairs``
-        such pairs is reversed when the median of |Δ(code − phase)| / Δt exceeds ``min_rate_m_s`` and the median of
-        |Δ(code + phase)| / Δt is below ``ratio`` times it
-        (:data:`~cdgps_cli.config.options.REVERSED_PHASE_LAG_S` and the others).
+        See above.
 
     Returns
     -------
     rows : ndarray of bool (N,)
         The rows of the reversed channels.
     minus_rate_m_s, plus_rate_m_s : ndarray (N,)
-        Each row's channel's median rate of code minus phase and of code plus phase, m/s (NaN: too few pairs).
+        Each row's channel's median |u − D| and |v − D|, m/s (NaN: too few pairs).
     """
     channel = np.asarray(channel, dtype=np.int64)
     t, phase, code = (np.asarray(a, dtype=np.float64) for a in (time_s, phase_m, code_m))
     n = channel.size
     minus_rate, plus_rate = np.full(n, np.nan), np.full(n, np.nan)
-    ok = np.isfinite(t) & np.isfinite(phase) & np.isfinite(code)
-    rows = np.flatnonzero(ok)
+    rows = np.flatnonzero(np.isfinite(t) & np.isfinite(phase) & np.isfinite(code))
     if rows.size == 0:
         return np.zeros(n, dtype=bool), minus_rate, plus_rate
     rows = rows[np.lexsort((t[rows], channel[rows]))]
-    ch, tt = channel[rows], t[rows]
-    key = np.searchsorted(np.unique(ch), ch).astype(np.float64) * (2.0 * (np.ptp(tt) + lag_s) + 1.0) + (tt - tt[0])
-    later = np.searchsorted(key, key + lag_s)               # each row's first row of its channel at least lag_s later
-    pair = later < rows.size
-    pair[pair] &= ch[later[pair]] == ch[pair]
-    i, j = rows[pair], rows[later[pair]]
-    dt = t[j] - t[i]
-    d_minus = np.abs((code[j] - phase[j]) - (code[i] - phase[i])) / dt
-    d_plus = np.abs((code[j] + phase[j]) - (code[i] + phase[i])) / dt
-    pair_ch = channel[i]
-    for c in np.unique(pair_ch):
-        sel = pair_ch == c
-        if np.count_nonzero(sel) >= min_pairs:
-            at = channel == c
-            minus_rate[at], plus_rate[at] = np.median(d_minus[sel]), np.median(d_plus[sel])
+    cuts = np.flatnonzero(np.diff(channel[rows])) + 1
+    arcs = [a for a in np.split(rows, cuts) if a.size > min_pairs]
+
+    def rates(arc):                    # (u, v) of one channel's pairs, m/s
+        tt = t[arc]
+        later = np.searchsorted(tt, tt + lag_s)
+        i = np.flatnonzero(later < arc.size)
+        j = later[i]
+        dt = tt[j] - tt[i]
+        cm, cp = code[arc] - phase[arc], code[arc] + phase[arc]
+        return (cm[j] - cm[i]) / dt, (cp[j] - cp[i]) / dt
+
+    kept, centres = [], []
+    for arc in arcs:
+        u, v = rates(arc)
+        if u.size >= min_pairs:
+            kept.append(arc)
+            centres.append((float(np.median(u)), float(np.median(v))))
+    drift = _common_drift(np.array(centres).reshape(-1, 2), min_rate_m_s)
+    for arc in kept:
+        u, v = rates(arc)
+        minus_rate[arc], plus_rate[arc] = np.median(np.abs(u - drift)), np.median(np.abs(v - drift))
     with np.errstate(invalid="ignore"):
         bad = (minus_rate > min_rate_m_s) & (plus_rate < ratio * minus_rate)
     return bad, minus_rate, plus_rate
+
+
+def _common_drift(centres: np.ndarray, tol: float) -> float:
+    """The receiver's common code–carrier drift D, m/s, from each channel's (median u, median v) (K, 2): the value
+    that the most channels hold within ``tol`` in u or in v (ties: the smallest |D|); 0 when that is within ``tol``
+    of 0 or there is no channel."""
+    if centres.size == 0:
+        return 0.0
+    candidates = centres.ravel()
+    near = np.minimum(np.abs(centres[None, :, 0] - candidates[:, None]),
+                      np.abs(centres[None, :, 1] - candidates[:, None])) < tol
+    score = near.sum(axis=1)
+    best = candidates[score == score.max()]
+    d = float(best[np.argmin(np.abs(best))])
+    return 0.0 if abs(d) < tol else d
 
 
 def without_reversed_phases(table, where: str):

@@ -26,6 +26,7 @@ from cdgps_cli.io.gnss_run import antennas_info, merge_nav
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import read_rinex_obs
+from cdgps_cli.measurement.channel_screen import naming_screened
 from cdgps_cli.measurement.phase_sign import without_reversed_l1_phases
 from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
@@ -34,12 +35,13 @@ from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_anten
 __all__ = ["load_stations", "baseline_from_files", "baseline_inputs", "load_baseline_job", "refuse_missing_files"]
 
 
-def load_stations(rinex: dict, nav_paths, warnings: list | None = None) -> tuple[dict, pd.DataFrame]:
+def load_stations(rinex: dict, nav_paths, warnings: list | None = None,
+                  screened: list | None = None) -> tuple[dict, pd.DataFrame]:
     """Read RINEX observation files (``{name: path}``, or ``{name: [paths and quoted glob patterns]}``: a station's
     consecutive files, hourly or daily, joined in time order into one record as ``ingest`` joins them; their joins'
     warnings into ``warnings``) and navigation files into Stations and one ephemeris table (duplicates across
     files removed); a station's GPS channels whose phase runs opposite to its code lose their phase, a warning naming
-    them (:func:`~cdgps_cli.measurement.phase_sign.without_reversed_l1_phases`)."""
+    them (:func:`~cdgps_cli.measurement.phase_sign.without_reversed_l1_phases`; into ``screened`` too, when given)."""
     if not nav_paths:
         raise CdgpsError("no navigation file given (--nav): GPS broadcast ephemerides are needed for satellite positions")
     stations, said = {}, warnings if warnings is not None else []
@@ -47,6 +49,8 @@ def load_stations(rinex: dict, nav_paths, warnings: list | None = None) -> tuple
         st = _read_station(name, path, said)
         obs, reversed_ = without_reversed_l1_phases(st.obs, f"{st.header.get('path', path)} ({name})")
         said += reversed_
+        if screened is not None:
+            screened += reversed_
         stations[name] = st._replace(obs=obs)
     return stations, merge_nav(nav_paths, ("G",))     # GPS files only; a Galileo-only file beside them is skipped
 
@@ -112,7 +116,8 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     shared = one_file_for_two_receivers({f"--rinex {k}": v for k, v in rinex.items()})
     rinex = {k: v[0] if len(v) == 1 else v for k, v in rinex.items()}     # one file: its name, as before
     joins: list = list(shared)
-    stations, nav = load_stations(rinex, nav_paths, joins)
+    screened: list = []
+    stations, nav = load_stations(rinex, nav_paths, joins, screened)
     shown = {k: v if isinstance(v, (str, Path)) else pieces_text(v) for k, v in rinex.items()}
     rover = next(n for n in rinex if n != master)
     stations, n_outside = _cut_to_window(stations, master, rover, shown, opt, start_gps_s, end_gps_s)
@@ -120,8 +125,9 @@ def baseline_from_files(rinex: dict, nav_paths, master: str, options: BaselineOp
     stations, antennas = _with_antenna_models(stations, nav, (master, rover), pos, shown, antex, antenna_types or {},
                                               joins)
     try:
-        res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
-                                    rover_xyz=pos.get(rover), engine=True, iono_threshold_km=iono_threshold_km)
+        with naming_screened(screened):
+            res = solve_static_baseline(stations[master], stations[rover], nav, options, master_xyz=pos.get(master),
+                                        rover_xyz=pos.get(rover), engine=True, iono_threshold_km=iono_threshold_km)
     except CdgpsError as exc:
         if str(exc).startswith("the navigation data does not cover"):     # name the files that fell short
             raise CdgpsError(f"{exc} (navigation file(s) given: {', '.join(map(str, nav_paths))})") from None
@@ -212,8 +218,8 @@ def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), mas
 
     Parameters
     ----------
-    job : path, optional
-        A baseline job file.
+    job : dict, optional
+        A baseline job file as :func:`load_baseline_job` reads it (its errors are the file's, named by its keys).
     stations : dict, optional
         ``{name: observation file(s)}`` instead of the job's stations (their positions, origins and antenna types,
         which name the job's stations, are then not used).
@@ -243,7 +249,7 @@ def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), mas
         Not two stations, no navigation file, no master or one that is not a station, an antenna type of a station not
         given, an invalid option (named by its field).
     """
-    got = load_baseline_job(job) if job else {
+    got = job if job else {
         "rinex": {}, "nav": [], "master": None, "options": BaselineOptions(), "positions": {}, "origins": {},
         "iono_threshold_km": IONO_THRESHOLD_KM, "antex": None, "antenna_types": {}, "notes": []}
     rinex, origins = got["rinex"], dict(got.get("origins") or {})

@@ -30,7 +30,7 @@ from cdgps_cli.core.signals import AUTO_SYSTEMS, SIGNALS, SYSTEM_NAMES, signal
 from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, receiver_geometry, receivers_code_noise,
                                             reported_positions, solve_rtk, troposphere_at_epochs)
 from cdgps_cli.measurement.code_steps import code_steps_warning
-from cdgps_cli.measurement.channel_screen import without_unusable_channels
+from cdgps_cli.measurement.channel_screen import naming_screened, without_unusable_channels
 from cdgps_cli.measurement.slips import unflagged_slip_text
 from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
 from cdgps_cli.io.atomic import write_atomic
@@ -169,6 +169,17 @@ def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_pat
     return b[kb].reset_index(drop=True), r[keep].reset_index(drop=True), hr, n_outside
 
 
+def _in_the_window(df: pd.DataFrame, opt: dict, who: str) -> np.ndarray:
+    """The rows of a receiver's table in the options' window as :func:`_time_window` cuts it (the base's
+    ``max_age_s`` wider on each side); every row without a window."""
+    lo, hi = opt["start_gps_s"], opt["end_gps_s"]
+    t = df["time_gps_s"].to_numpy()
+    if lo is None and hi is None:
+        return np.ones(t.size, dtype=bool)
+    age = float(opt["max_age_s"]) if who == "base" else 0.0
+    return in_window(t, None if lo is None else lo - age, None if hi is None else hi + age, float(opt["sync_tol_s"]))
+
+
 def _holds_none_of(exc: CdgpsError) -> bool:
     """Whether a navigation reader's error only says the file holds no ephemerides of the systems asked
     for (a Galileo file when GPS is wanted): the file is passed over; any other error (a truncated,
@@ -238,12 +249,8 @@ def rtk_from_files(base_path, rover_path, nav_paths, out_csv, *, base_xyz_m=None
                          f"this output is not one (its suffix is not .pos)")
     _refuse_a_format_not_written(out_csv)
     pair = _read_pair(base_path, rover_path, nav_paths, opt)
-    try:
+    with naming_screened(pair.screened):
         return _rtk_from_pair(pair, out_csv, opt, base_xyz_m)
-    except CdgpsError as exc:
-        if not pair.screened:
-            raise
-        raise CdgpsError(f"{exc} (channels left out before: {'; '.join(pair.screened)})") from None
 
 
 def _rtk_from_pair(pair: SimpleNamespace, out_csv, opt: dict, base_xyz_m) -> dict:
@@ -326,21 +333,27 @@ def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
     warnings += notes
     hb, b = _read_receiver(base_files, sigs, glo_k, "base", warnings, attrs["base"])
     hr, r = _read_receiver(rover_files, sigs, glo_k, "rover", warnings, attrs["rover"])
+    # the channels without a usable phase, from the whole files (a phase's sign is the receiver's, not the window's);
+    # single-point positions take every code, a channel left out for its phase too
+    screened: list = []
+    kept = [_without_unusable_channels(df, path, who, screened) for df, path, who in ((b, base_path, "base"),
+                                                                                        (r, rover_path, "rover"))]
     b, r, hr, n_outside = _time_window(b, r, hr, opt, base_path, rover_path)
+    kept = [df[_in_the_window(df, opt, who)].reset_index(drop=True) for df, who in zip(kept, ("base", "rover"))]
     _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
         raise nav_error
-    screened: list = []
-    b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((b, base_path, "base"),
-                                                                                     (r, rover_path, "rover")))
-    codes = (b, r)          # single-point positions take every code, a channel left out for its phase too
-    b, r = (_without_unusable_channels(df, path, who, screened)
-            for df, path, who in ((b, base_path, "base"), (r, rover_path, "rover")))
+    codes = tuple(_first_of_repeated_epochs(df, path, who, []) for df, path, who in ((b, base_path, "base"),
+                                                                                      (r, rover_path, "rover")))
+    b, r = (_first_of_repeated_epochs(df, path, who, warnings) for df, path, who in ((kept[0], base_path, "base"),
+                                                                                     (kept[1], rover_path, "rover")))
     warnings += screened
-    if auto:                # a header may list a signal its records never hold: 'auto' keeps those both files observe
-        sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
-        opt["signals"] = tuple(sigs)
-    check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path), "nav": ", ".join(map(str, nav_paths))})
+    with naming_screened(screened):
+        if auto:            # a header may list a signal its records never hold: 'auto' keeps those both files observe
+            sigs, b, r = _observed_signals(sigs, b, r, {"base": base_path, "rover": rover_path}, warnings)
+            opt["signals"] = tuple(sigs)
+        check_common_signals(b, r, sigs, nav, {"base": str(base_path), "rover": str(rover_path),
+                                               "nav": ", ".join(map(str, nav_paths))})
     return SimpleNamespace(b=b, r=r, hb=hb, hr=hr, nav=nav, nav_paths=nav_paths, sigs=sigs, base_files=base_files,
                            rover_files=rover_files, base_path=base_path, rover_path=rover_path, n_outside=n_outside,
                            warnings=warnings, screened=screened, codes=codes)

@@ -126,3 +126,21 @@ def test_a_plain_files_header_alone_is_read():
     assert _plain_header(BASE) is None and _plain_header(REPO_ROOT / "tests" / "data" / "P433_lli_subset.crx") is None
     if car.exists():
         assert phase_attributes_in_file(car, ["G:L2"]) == {"G:L2": "XW"}
+
+
+def test_a_file_without_a_signals_types_does_not_narrow_the_receivers_attributes(monkeypatch):
+    """A receiver's attributes of a signal are those every file that lists the signal lists: an hour whose header
+    has no L2 types (or a file of another system, as gnss-sdr writes them) no longer makes the receiver's set empty
+    (which left each file to read its own first attribute, a family mixed without a word); files that all list it
+    still narrow it to what they share, and a signal no file lists stays empty (the reader refuses it)."""
+    from cdgps_cli.io import rinex_signals  # noqa: PLC0415
+
+    held = {"a": {"G:L2": "CW", "E:E1": ""}, "b": {"G:L2": "", "E:E1": "BC"}, "c": {"G:L2": "W", "E:E1": ""}}
+    monkeypatch.setattr(rinex_signals, "phase_attributes_in_file", lambda path, signals, read=None: held[path])
+    got = lambda *names: rinex_signals._receiver_attributes([("rinex", n, None) for n in names], ["G:L2", "E:E1"])  # noqa: E731
+    assert got("a", "b") == {"G:L2": "CW", "E:E1": "BC"}
+    assert got("b", "a") == {"G:L2": "CW", "E:E1": "BC"}
+    assert got("a", "b", "c") == {"G:L2": "W", "E:E1": "BC"}
+    assert got("a") == {"G:L2": "CW", "E:E1": ""}
+    held["d"] = {"G:L2": "", "E:E1": ""}
+    assert got("b", "d") == {"G:L2": "", "E:E1": "BC"}

@@ -7,6 +7,7 @@ thousands of kilometres off with σ of metres, exit 0."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -57,9 +58,33 @@ def test_ten_hz_noisy_codes_and_clock_jumps_in_the_codes_do_not_change_the_answe
                                                                       5: False}
 
 
+@pytest.mark.parametrize("drift_m_s", [300.0, -1000.0])
+@pytest.mark.parametrize("n_reversed", [3, 5])
+def test_a_code_carrier_drift_common_to_the_receiver_is_no_evidence(drift_m_s, n_reversed):
+    """Code and phase parting at a rate common to every channel (gnss-sdr has written such records: a clock
+    correction applied to one and not the other) cancel in double differences: no right channel is flagged, whatever
+    its range rate (one at −D/2, whose code plus phase then changes as little as a reversed one's would), and the
+    reversed ones still are, also when they are the majority (5 of 6)."""
+    ch, t, phase, code = _channels()
+    rates = np.array([-700.0, 300.0, 650.0, -200.0, 0.02, 500.0])
+    right = np.flatnonzero(np.arange(6) >= 3)
+    phase = phase.copy()
+    for k in range(3, 3 + n_reversed - 3):                       # more reversed channels: 4 and 5 too
+        phase[ch == k] = -phase[ch == k]
+    sel = ch == 5                                               # a right channel at −D/2: |v − 0| small, |u| = D
+    if n_reversed < 6:
+        rho5 = 2.2e7 + (-drift_m_s / 2.0) * t[sel] + 3.0 * t[sel] + 1e-3 * t[sel] ** 2
+        phase[sel] = rho5 + 1e3 * 5
+        code[sel] = rho5 + np.random.default_rng(9).standard_normal(int(sel.sum()))
+    bad, minus, plus = reversed_phase_channels(ch, t, phase, code + drift_m_s * t)
+    flagged = {int(c) for c in np.unique(ch[bad])}
+    assert flagged == set(range(n_reversed)) - {4}, (flagged, rates[right])   # (4: its closest approach, no evidence)
+    assert np.all(minus[ch >= n_reversed] < 5.0)                # the right channels: at the common drift
+
+
 def test_a_channel_too_short_or_near_its_closest_approach_is_kept():
     ch, t, phase, code = _channels()
-    short = t < 8.0                                             # 8 s: fewer than 10 pairs a second apart
+    short = t < 5.0                                             # 5 s: 4 pairs a second apart, fewer than 5
     assert not reversed_phase_channels(ch[short], t[short], phase[short], code[short])[0].any()
     sel = ch == 4
     reversed_slow = -phase[sel]                                 # reversed at closest approach: no evidence
@@ -104,7 +129,8 @@ def _rtk(d, rover, name):
 def test_rtk_and_baseline_leave_them_out_and_land_where_the_unedited_pair_does(edited):
     neg, said = _rtk(edited, edited / "rover_neg.obs", "neg")
     ref, _ = _rtk(edited, MOSAIC_DIR / "rover.obs", "ref")
-    assert "runs opposite to its code" not in said and "G:L1 G05" in said and "wrote it with the wrong sign" in said
+    warned = [w for w in neg["warnings"] if "wrote it with the wrong sign" in w]
+    assert len(warned) == 1 and "G:L1 G05 (" in warned[0] and "G:L1 G13 (" in warned[0] and len(re.findall(r"[A-Z]:\w+ [A-Z]\d\d \(", warned[0])) == 2
     assert neg["fixed_pct"] > 80 and ref["fixed_pct"] > 90           # (two satellites fewer: fewer epochs fix)
     moved = np.subtract(neg["static_xyz_m"], ref["static_xyz_m"])
     assert np.linalg.norm(moved) < 5e-3                         # two satellites fewer of 9: 2.5 mm
@@ -131,3 +157,29 @@ def test_init_on_a_run_leaves_them_out_too(edited):
     said = [w for w in rover["warnings"] if "wrote it with the wrong sign" in w]
     assert len(said) == 1 and "G:L1 G05" in said[0] and "G:L1 G13" in said[0]
     assert rover["solution"] == "fixed" and not set(NEGATED) & {s["sat"] for s in rover["satellites"]}
+
+
+def test_a_short_window_is_screened_on_the_whole_files_evidence(edited):
+    """An 8 s window (7 pairs a second apart, too few alone) is screened as the whole record is: the sign is the
+    receiver's, not the window's (a review found the window cut first, and heights 1.7–3.8 km off, exit 0)."""
+    out = edited / "w.pos"
+    r = run_cli("-q", "rtk", "--base", MOSAIC_DIR / "base.obs", "--rover", edited / "rover_neg.obs", "--nav",
+                MOSAIC_DIR / "base.nav", "--signals", "G:L1", "--mode", "kinematic", "--start-time",
+                "2024/06/24 08:21:00", "--end-time", "2024/06/24 08:21:03", "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output[r.output.index("{"):])
+    assert any("G:L1 G05 (" in w and "wrong sign" in w for w in s["warnings"]) and s["epochs"] == 4
+    up = [float(ln.split()[4]) for ln in out.read_text().splitlines() if not ln.startswith("%")]
+    assert max(up) - min(up) < 1.0                              # (heights within a metre: no km-off float)
+
+
+def test_every_phase_screened_out_is_said_in_the_error(edited):
+    """When the screen leaves a receiver no phase of the signals asked for, the refusal says which channels it took
+    out (it said the file held no phase)."""
+    text = (MOSAIC_DIR / "rover.obs").read_text()
+    sats = sorted({ln[:3] for ln in text.splitlines() if ln[:1] == "G" and ln[1:3].isdigit()})
+    (edited / "rover_all_neg.obs").write_text(edit_rinex3_obs(text, phase_negated=tuple(sats)))
+    r = run_cli("-q", "rtk", "--base", MOSAIC_DIR / "base.obs", "--rover", edited / "rover_all_neg.obs", "--nav",
+                MOSAIC_DIR / "base.nav", "--signals", "G:L1", "-o", edited / "all.pos")
+    assert r.exit_code == 2 and "channels left out before" in r.output and "wrong sign" in r.output, r.output
+    assert not (edited / "all.pos").exists()

@@ -149,16 +149,18 @@ def test_what_is_given_beside_a_job_goes_on_top_of_it():
     from cdgps_cli.pipeline.baseline_job import baseline_inputs  # noqa: PLC0415
 
     job = load_baseline_job(JOB)
-    got = baseline_inputs(JOB)
+    got = baseline_inputs(job)
     assert (got["rinex"], got["nav_paths"], got["master"], got["options"]) == (job["rinex"], job["nav"], job["master"],
                                                                               job["options"])
-    got = baseline_inputs(JOB, master="0759", nav_paths=["x.nav"], changes={"mask_deg": 20.0, "partial": False})
+    got = baseline_inputs(job, master="0759", nav_paths=["x.nav"], changes={"mask_deg": 20.0, "partial": False})
     assert (got["master"], got["nav_paths"], got["options"].mask_deg, got["options"].partial) == ("0759", ["x.nav"],
                                                                                                    20.0, False)
     assert got["options"].ratio_threshold == job["options"].ratio_threshold and "nav" not in got["origins"]
     two = {"a": "a.obs", "b": "b.obs"}
     got = baseline_inputs(None, stations=two, nav_paths=["n"], master="a", antenna_types={"b": "none"})
     assert got["rinex"] == two and "rinex" not in got["origins"] and got["antenna_types"] == {"b": "none"}
+    got = baseline_inputs(job, master_xyz=(-3978242.4348, 3382841.1715, 3649902.7667))
+    assert got["positions"] == {job["master"]: pytest.approx([-3978242.4348, 3382841.1715, 3649902.7667])}
     for kw, said in (({"stations": {"a": "a.obs"}, "nav_paths": ["n"], "master": "a"}, "exactly two stations"),
                      ({"stations": two, "master": "a"}, "at least one navigation file"),
                      ({"stations": two, "nav_paths": ["n"]}, "--master is required"),
@@ -166,6 +168,18 @@ def test_what_is_given_beside_a_job_goes_on_top_of_it():
                      ({"stations": two, "nav_paths": ["n"], "master": "a", "changes": {"mask_deg": 95.0}},
                       "mask_deg must be in"),
                      ({"stations": two, "nav_paths": ["n"], "master": "a", "antenna_types": {"c": "none"}},
-                      "--antenna c: not one of")):
+                      "--antenna c: not one of"),
+                     ({"stations": two, "nav_paths": ["n"], "master": "a", "master_xyz": (0, 0, 0)},
+                      "--master-xyz 0,0,0: 0.0 km from the Earth's centre")):
         with pytest.raises(CdgpsError, match=said):
             baseline_inputs(None, **kw)
+
+
+def test_a_job_files_errors_name_its_keys_whatever_flags_are_given(tmp_path):
+    """A job file's bad value is named by its key, also when a flag of the same field is given beside it (a review
+    found ``gnss.--mask-deg``: the flags' renaming ran over the job's reading too)."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text(JOB.read_text().replace("mask_deg = 15.0", "mask_deg = 95.0"))
+    for extra in ((), ("--mask-deg", "10")):
+        r = CliRunner().invoke(main, ["-q", "baseline", "--config", str(bad), *extra, "-o", str(tmp_path / "o.json")])
+        assert r.exit_code == 2 and "gnss.mask_deg" in r.output and "--mask-deg" not in r.output, r.output
