@@ -183,3 +183,28 @@ def test_a_job_files_errors_name_its_keys_whatever_flags_are_given(tmp_path):
     for extra in ((), ("--mask-deg", "10")):
         r = CliRunner().invoke(main, ["-q", "baseline", "--config", str(bad), *extra, "-o", str(tmp_path / "o.json")])
         assert r.exit_code == 2 and "gnss.mask_deg" in r.output and "--mask-deg" not in r.output, r.output
+
+
+def test_master_xyz_places_a_master_whose_header_has_no_position(tmp_path):
+    """``baseline --master-xyz``: the real mosaic base with its APPROX POSITION XYZ written as 0 0 0 (as software
+    receivers and converters write it) is refused naming the option; given its position, the baseline is the one
+    of the unedited file, bit for bit."""
+    from tests._shared import MOSAIC_DIR  # noqa: PLC0415
+
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    text = (MOSAIC_DIR / "base.obs").read_text()
+    line = next(ln for ln in text.splitlines() if ln[60:].strip() == "APPROX POSITION XYZ")
+    xyz = line[:60].split()
+    (tmp_path / "base0.obs").write_text(text.replace(line, f"{0.0:14.4f}{0.0:14.4f}{0.0:14.4f}".ljust(60) + line[60:]))
+    run = lambda base, *extra: CliRunner().invoke(main, [  # noqa: E731
+        "-q", "baseline", "--rinex", f"base={base}", "--rinex", f"rover={MOSAIC_DIR / 'rover.obs'}", "--nav",
+        str(MOSAIC_DIR / "base.nav"), "--master", "base", *extra, "-o", str(tmp_path / f"{Path(base).stem}.json")])
+    r = run(tmp_path / "base0.obs")
+    assert r.exit_code == 2 and "--master-xyz X Y Z" in r.output, r.output
+    assert run(tmp_path / "base0.obs", "--master-xyz", *xyz).exit_code == 0
+    assert run(MOSAIC_DIR / "base.obs").exit_code == 0
+    import json  # noqa: PLC0415
+
+    given, header = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("base0", "base"))
+    assert given["states"] == header["states"] and given["solution"] == header["solution"] == "fixed"
