@@ -115,7 +115,7 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
         if not data:
             raise CdgpsError(f"{p}: decompressed to nothing; truncated or corrupt compressed file")
     _refuse_a_value_cut_by_the_end(data, p)
-    return _with_the_last_blank_lines(data), compressed or crinex
+    return _with_the_last_blank_lines(_without_repeated_headers(data, p)), compressed or crinex
 
 
 #: a RINEX 2 epoch line: a date and time (yy mm dd hh mm ss.sssssss), then the flag and the number of satellites
@@ -125,11 +125,64 @@ _V2_TAIL_BYTES = 1 << 15
 
 
 class EndPadded(bytes):
-    """A RINEX 2 observation file's bytes given back the blank lines its last satellite's record lacked
-    (:func:`_with_the_last_blank_lines`); ``end_padded_lines`` says how many, for the readers' ``end_padded_lines``
-    and the commands' warning (:func:`end_padded_text`)."""
+    """A RINEX observation file's bytes as the readers take them: given back the blank lines a RINEX 2 file's last
+    satellite's record lacked (:func:`_with_the_last_blank_lines`; ``end_padded_lines`` says how many), or without the
+    second headers of files joined one after the other (:func:`_without_repeated_headers`; ``repeated_headers``: the
+    lines where they started), for the readers' header keys of the same names and the commands' warnings
+    (:func:`end_padded_text`, :func:`repeated_headers_text`)."""
 
     end_padded_lines: int = 0
+    repeated_headers: tuple = ()
+
+
+def repeated_headers_text(who: str, lines) -> str:
+    """The warning for a file read without the second headers that started at ``lines``."""
+    return (f"{who}: a second header at line(s) {', '.join(map(str, lines))} (recordings joined one after the other): "
+            f"its observation types are the first header's; read on as one record")
+
+
+#: header lines that say how the records are laid out: a second header must repeat them to be read on
+_LAYOUT_LABELS = (b"SYS / # / OBS TYPES", b"# / TYPES OF OBSERV")
+
+
+def _layout(head: bytes) -> list:
+    """A header's observation-type lines (their first 60 columns), in order."""
+    return [ln[:60].rstrip() for ln in head.split(b"\n") if ln[60:80].rstrip() in _LAYOUT_LABELS]
+
+
+def _without_repeated_headers(data: bytes, path) -> bytes:
+    """A RINEX file holding further headers after its first (files joined by ``cat``: a receiver or a software
+    receiver restarted within one log; RTKLIB reads on) without them, an :class:`EndPadded` whose ``repeated_headers``
+    lists the lines where they started (observation files: the readers' warning says them; a navigation file's
+    records read the same either way).  A further header of another version or file type, or whose observation
+    types are not the first's (the records would be read with the wrong columns), is refused naming its line; any
+    other file is returned as it is."""
+    if len(data) < 80 or data[60:80].rstrip() != b"RINEX VERSION / TYPE":
+        return data
+    head_end = data.find(b"END OF HEADER")
+    k = data.find(b"RINEX VERSION / TYPE", head_end) if head_end > 0 else -1
+    if k < 0:
+        return data
+    layout, parts, pos, starts = (data[:21].split(), _layout(data[:head_end])), [], 0, []
+    while k >= 0:
+        start = data.rfind(b"\n", 0, k) + 1
+        line = data.count(b"\n", 0, start) + 1
+        end = data.find(b"END OF HEADER", k)
+        if end < 0:
+            raise CdgpsError(f"{path}: line {line}: a second header (RINEX VERSION / TYPE) without its END OF HEADER")
+        if (data[start:start + 21].split(), _layout(data[start:end])) != layout:
+            raise CdgpsError(f"{path}: line {line}: a second header whose version, file type or observation types are "
+                             f"not the first's (recordings joined into one file): give them as separate files (one "
+                             f"after the other)")
+        stop = data.find(b"\n", end)
+        stop = len(data) if stop < 0 else stop + 1
+        parts.append(data[pos:start])
+        starts.append(line)
+        pos = stop
+        k = data.find(b"RINEX VERSION / TYPE", stop)
+    out = EndPadded(b"".join(parts) + data[pos:])
+    out.repeated_headers = tuple(starts)
+    return out
 
 
 def end_padded_text(who: str, n: int) -> str:
@@ -178,6 +231,7 @@ def _with_the_last_blank_lines(data: bytes) -> bytes:
             return data
         out = EndPadded(data + (b"" if whole_end else b"\n") + b"\n" * missing)
         out.end_padded_lines = missing
+        out.repeated_headers = getattr(data, "repeated_headers", ())
         return out
     return data
 
@@ -676,6 +730,9 @@ def _noting_end_padding(data: bytes, result: tuple) -> tuple:
     n = getattr(data, "end_padded_lines", 0)
     if n:
         result[0]["end_padded_lines"] = int(n)
+    again = getattr(data, "repeated_headers", ())
+    if again:
+        result[0]["repeated_headers"] = list(again)
     return result
 
 

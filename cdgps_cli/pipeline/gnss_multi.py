@@ -36,7 +36,7 @@ from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
-from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav
+from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav, repeated_headers_text
 from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
                                         read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
@@ -1042,6 +1042,8 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list,
             warnings.append(out_of_order_text(f"{path} ({who})", back[0], back[1]))
         if header.get("end_padded_lines"):
             warnings.append(end_padded_text(f"{path} ({who})", header["end_padded_lines"]))
+        if header.get("repeated_headers"):
+            warnings.append(repeated_headers_text(f"{path} ({who})", header["repeated_headers"]))
         return header, obs
     return _ubx_receiver(path, _ubx(path), sigs, who, warnings)
 
