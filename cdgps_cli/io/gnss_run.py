@@ -712,6 +712,21 @@ def _ingest_files(cfg: GnssConfig, rinex: dict | None, ubx: dict | None) -> tupl
     return files, pieces, shared
 
 
+def _files_by_system_said(exc: CdgpsError, name: str, kind: str, paths: list, signals) -> CdgpsError:
+    """A reading error of an antenna's files, said again when the files hold its systems side by side (a file per
+    system, as gnss-sdr writes them: :func:`~cdgps_cli.io.rinex_signals.signals_by_file`; looked at only once a file
+    failed): ``ingest`` joins a receiver's files one after the other in time, ``rtk`` merges such files."""
+    from cdgps_cli.io.rinex_signals import signals_by_file  # noqa: PLC0415
+
+    split = signals_by_file(paths, list(signals or ("G:L1",))) if kind == "rinex" else None
+    if split is None:
+        return exc
+    return CdgpsError(f"{pieces_text(paths)} ({name}): its files hold its systems side by side ("
+                      + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split))
+                      + "): ingest joins a receiver's files one after the other in time; merge them into one RINEX "
+                      "file, or solve the pair with 'cdgps rtk --rover A --rover B', which merges them")
+
+
 def _refuse_overwriting_an_input(out_path: Path, pieces: dict, nav_list: list) -> None:
     """CdgpsError when the output is one of the receivers' or navigation files."""
     for n, ps in pieces.items():
@@ -739,7 +754,10 @@ def _read_receivers(cfg: GnssConfig, files: dict, pieces: dict, say, strict: boo
         if len(pieces[n]) == 1:
             receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
             continue
-        rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
+        try:
+            rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
+        except CdgpsError as exc:
+            raise _files_by_system_said(exc, n, kind, pieces[n], cfg.signals) from None
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))

@@ -209,6 +209,21 @@ def signals_in_file(path: str | Path) -> list[str]:
     return out
 
 
+def signals_by_file(files: list, signals) -> list | None:
+    """The signals of ``signals`` each of a receiver's RINEX files lists, when the files hold them system by system
+    (no system in two files, every file some): one receiver's observations written a file per system, as gnss-sdr
+    writes them; None otherwise (consecutive files, each read with every signal)."""
+    from cdgps_cli.core.signals import signal  # noqa: PLC0415
+
+    if len(files) < 2:
+        return None
+    held = [[x for x in signals if x in set(signals_in_file(p))] for p in files]
+    systems = [{signal(x).system for x in h} for h in held]
+    if any(not h for h in held) or len(set().union(*systems)) != sum(len(x) for x in systems):
+        return None
+    return held
+
+
 def phase_attributes_in_file(path: str | Path, signals, read: tuple[bytes, bool] | None = None) -> dict:
     """{signal: the tracking attributes of its phase types that a RINEX 3 observation file's header lists (a string
     of letters, "" for none)} for ``signals``; every value None for a RINEX 2 file (its ``L2`` may be either family).

@@ -37,7 +37,7 @@ from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav, repeated_headers_text
-from cdgps_cli.io.rinex_signals import (first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
+from cdgps_cli.io.rinex_signals import (signals_by_file, first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
                                         read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
 from cdgps_cli.io.solution_formats import POS_FRAMES, Q_FIX, Q_FLOAT, csv_text, finite_or, geojson_text, nmea_gga_text, pos_text
@@ -913,11 +913,14 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list,
     if len(files) == 1:
         return _read_observations(files[0], sigs, glo_k, who, warnings, attributes)
     ubx = all(is_ubx_log(p) for p in files)
-    split = None if any(is_ubx_log(p) for p in files) else _signals_by_file(files, sigs)
-    if split is not None:
-        return _merged_systems(files, split, glo_k, who, warnings, attributes)
     said: list = []               # consecutive u-blox logs are decoded again as one stream (below): not their pieces'
-    reads = [_read_observations(p, sigs, glo_k, who, said, attributes) for p in files]
+    try:
+        reads = [_read_observations(p, sigs, glo_k, who, said, attributes) for p in files]
+    except CdgpsError:            # (a file without some signal asked: its systems may be in files of their own)
+        split = None if any(is_ubx_log(p) for p in files) else signals_by_file(files, sigs)
+        if split is None:
+            raise
+        return _merged_systems(files, split, glo_k, who, warnings, attributes)
     tab, report, order = join_tables([(str(p), df) for p, (_, df) in zip(files, reads)], "time_gps_s", np.nan,
                                      gps_time_str, what=f"{pieces_text(files)} ({who})")
     refuse_another_receiver(who, [reads[i][0] for i in order], [files[i] for i in order], ONE_RECEIVER_FIELDS)
@@ -939,22 +942,9 @@ def _read_receiver(files: list, sigs, glo_k, who: str, warnings: list,
             "file_epoch_times": joined}, tab
 
 
-def _signals_by_file(files: list, sigs) -> list | None:
-    """The signals of ``sigs`` each RINEX file of a receiver lists, when the files hold them system by system (no
-    system in two files, every file some): one receiver's observations written a file per system, as gnss-sdr
-    writes them; None otherwise (consecutive files, each read with every signal)."""
-    from cdgps_cli.io.rinex_signals import signals_in_file  # noqa: PLC0415
-
-    held = [[x for x in sigs if x in set(signals_in_file(p))] for p in files]
-    systems = [{signal(x).system for x in h} for h in held]
-    if any(not h for h in held) or len(set().union(*systems)) != sum(len(x) for x in systems) or len(files) < 2:
-        return None
-    return held
-
-
 def _merged_systems(files: list, split: list, glo_k, who: str, warnings: list,
                     attributes: dict | None) -> tuple[dict, pd.DataFrame]:
-    """A receiver's header and signal table from its files of one system each (:func:`_signals_by_file`): each read
+    """A receiver's header and signal table from its files of one system each (:func:`~cdgps_cli.io.rinex_signals.signals_by_file`): each read
     with its own signals, their rows merged epoch by epoch (in time order, the files' order within an epoch); the
     header of the first file, its epochs those of every file.  CdgpsError when the files do not cover one span (a
     file per system is written over the same time) or are not of one receiver."""

@@ -69,3 +69,14 @@ def test_files_of_one_system_each_whose_spans_do_not_meet_are_refused(split):
     r, out = _rtk(d, "apart", d / "rover_g_early.obs", d / "rover_e_late.obs")
     assert r.exit_code == 2 and "their spans do not meet" in r.output and "rover_g_early.obs: G:L1" in r.output
     assert not out.exists()
+
+
+def test_ingest_says_it_joins_files_in_time_and_names_rtk(split):
+    """``ingest`` joins a receiver's files one after the other in time; files holding its systems side by side are
+    refused saying so (it named the Galileo file's missing GPS types) and naming ``rtk``, which merges them."""
+    d = split
+    r = run_cli("-q", "ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_g.obs'}",
+                "--rinex", f"rover={d / 'rover_e.obs'}", "--nav", MOSAIC_DIR / "base.nav", "--master", "base",
+                "-o", d / "run.mcap")
+    assert r.exit_code == 2 and "its files hold its systems side by side" in r.output, r.output
+    assert "cdgps rtk --rover A --rover B" in r.output and not (d / "run.mcap").exists()
