@@ -221,8 +221,8 @@ def baseline_inputs(job=None, *, stations: dict | None = None, nav_paths=(), mas
     job : dict, optional
         A baseline job file as :func:`load_baseline_job` reads it (its errors are the file's, named by its keys).
     stations : dict, optional
-        ``{name: observation file(s)}`` instead of the job's stations (their positions, origins and antenna types,
-        which name the job's stations, are then not used).
+        ``{name: observation file(s)}`` instead of the job's stations (the job's origins and antenna types, which
+        name its own files, are then not used; a position it gives a station of the same name still is).
     nav_paths : sequence of paths
         Navigation files instead of the job's (empty: the job's).
     master : str, optional
