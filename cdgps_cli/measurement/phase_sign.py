@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from cdgps_cli.core.constants import GPS_L1_WAVELENGTH_M
+from cdgps_cli.measurement.slips import table_channels
 from cdgps_cli.config.options import (REVERSED_PHASE_LAG_S, REVERSED_PHASE_MIN_PAIRS, REVERSED_PHASE_MIN_RATE_M_S,
                                       REVERSED_PHASE_RATIO)
 
@@ -116,10 +117,8 @@ def without_reversed_phases(table, where: str):
     (rover)"; [] when none).  (Single-point positions take the codes of the table given, before this screen.)"""
     if table is None or table.empty:
         return table, []
-    sat = np.unique(table["sat"].to_numpy(), return_inverse=True)[1].ravel()       # (pandas stays off this module)
-    sig = np.unique(table["signal"].to_numpy(), return_inverse=True)[1].ravel()
     phase_m = table["phase_cycles"].to_numpy(dtype=np.float64) * table["wavelength_m"].to_numpy(dtype=np.float64)
-    bad, minus, plus = reversed_phase_channels(sat * (int(sig.max()) + 1) + sig, table["time_gps_s"].to_numpy(),
+    bad, minus, plus = reversed_phase_channels(table_channels(table), table["time_gps_s"].to_numpy(),
                                                phase_m, table["pseudorange_m"].to_numpy(dtype=np.float64))
     if not bad.any():
         return table, []

@@ -163,6 +163,13 @@ def unflagged_slip_text(sat, signal, time_s, n_show: int = 8) -> list[str]:
             f"start a new ambiguity: {', '.join(where[:n_show])}{more}"]
 
 
+def table_channels(table) -> np.ndarray:
+    """Channel (N,) of each row of a signal table: one integer per (satellite, signal) pair (not empty)."""
+    sat = np.unique(table["sat"].to_numpy(), return_inverse=True)[1].ravel()       # (pandas stays off this module)
+    sig = np.unique(table["signal"].to_numpy(), return_inverse=True)[1].ravel()
+    return sat * (int(sig.max()) + 1) + sig
+
+
 def without_unlocked_channels(table, where: str):
     """A receiver's signal table (``sat``, ``signal``, ``lli`` per row) less its :func:`unlocked_channels`, and the
     warnings naming them (``where``: the receiver, e.g. "base.obs (base)"; [] when none): each flag starts a new
@@ -170,9 +177,7 @@ def without_unlocked_channels(table, where: str):
     without one (a real rover's BeiDou B2I: no epoch of 601 fixed with it, all 601 without it)."""
     if table is None or table.empty:
         return table, []
-    sat = np.unique(table["sat"].to_numpy(), return_inverse=True)[1].ravel()       # (pandas stays off this module)
-    sig = np.unique(table["signal"].to_numpy(), return_inverse=True)[1].ravel()
-    bad, share = unlocked_channels(sat * (int(sig.max()) + 1) + sig, table["lli"].to_numpy())
+    bad, share = unlocked_channels(table_channels(table), table["lli"].to_numpy())
     if not bad.any():
         return table, []
     named = (table.loc[bad, ["signal", "sat"]].assign(pct=100 * share[bad]).drop_duplicates(["signal", "sat"])

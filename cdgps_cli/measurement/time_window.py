@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from cdgps_cli.core.gps_time import gps_time_str
+from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.gps_time import gps_time_str, time_span
 
-__all__ = ["OUTSIDE_WINDOW", "window_errors", "in_window", "window_text", "with_dropped"]
+__all__ = ["OUTSIDE_WINDOW", "window_errors", "in_window", "window_text", "with_dropped", "pair_in_window"]
 
 #: why a rover epoch of its file was not solved: outside ``start_gps_s`` … ``end_gps_s``
 OUTSIDE_WINDOW = "outside the time window asked for (--start-time / --end-time)"
@@ -55,3 +56,23 @@ def with_dropped(pairing: dict, reason: str, n: int) -> dict:
     if n <= 0:
         return pairing
     return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], reason: n}}
+
+
+def pair_in_window(base_t, rover_t, lo, hi, tol: float, max_age_s: float, names: tuple) -> tuple[np.ndarray,
+                                                                                                   np.ndarray]:
+    """The rows of a base's and a rover's time tags (GPS s) that a window [``lo``, ``hi``] keeps: the rover's
+    :func:`in_window` it, the base's within ``max_age_s`` more on each side (where the window's rover epochs find
+    their pairs and bridges).  ``names``: (base, rover) as the messages name them ("base.obs (base)").  CdgpsError
+    naming the rover and its span when no rover epoch is inside, the base and its span when no base epoch is within
+    ``max_age_s`` of it."""
+    age = float(max_age_s)
+    keep_r = in_window(rover_t, lo, hi, tol)
+    keep_b = in_window(base_t, None if lo is None else lo - age, None if hi is None else hi + age, tol)
+    for t, k, name, near in ((rover_t, keep_r, names[1], ""),
+                             (base_t, keep_b, names[0], f" or within max_age_s ({age:g} s) of it")):
+        if not k.any():
+            span = time_span(t)
+            has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
+            raise CdgpsError(f"{name}: no epoch in the window asked for{near} ({window_text(lo, hi)}: --start-time / "
+                             f"--end-time); its epochs span {has}")
+    return keep_b, keep_r

@@ -21,14 +21,14 @@ from cdgps_cli.config.options import IONO_THRESHOLD_KM
 from cdgps_cli.core import toml_text
 from cdgps_cli.core.errors import CdgpsError, join_problems
 from cdgps_cli.estimation.baseline import BaselineOptions, Station, solve_static_baseline
-from cdgps_cli.core.gps_time import distinct_times, gps_time_str, time_span
+from cdgps_cli.core.gps_time import distinct_times, gps_time_str
 from cdgps_cli.io.gnss_run import antennas_info, merge_nav
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, is_pattern, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import read_rinex_obs
 from cdgps_cli.measurement.channel_screen import naming_screened
 from cdgps_cli.measurement.phase_sign import without_reversed_l1_phases
-from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
+from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, pair_in_window, window_errors, window_text, with_dropped
 from cdgps_cli.model.gps.positioning import antenna_reference_point_m
 from cdgps_cli.pipeline.antenna_models import antenna_models, station_with_antenna_model
 
@@ -156,22 +156,13 @@ def _cut_to_window(stations: dict, master: str, rover: str, shown: dict, opt: Ba
     the file and its span when no rover epoch is inside, or no master epoch within ``max_age_s`` of it."""
     if lo is None and hi is None:
         return stations, 0
-    out, n_outside = dict(stations), 0
-    age = float(opt.max_age_s)
-    for name, a, b in ((rover, lo, hi), (master, None if lo is None else lo - age, None if hi is None else hi + age)):
-        obs = stations[name].obs
-        t = obs["time_gps_s"].to_numpy(dtype="float64")
-        keep = in_window(t, a, b, opt.sync_tol_s)
-        if not keep.any():
-            span = time_span(t)
-            has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
-            near = "" if name == rover else f" or within max_age_s ({age:g} s) of it"
-            raise CdgpsError(f"{shown[name]} ({name}): no epoch in the window asked for{near} "
-                             f"({window_text(lo, hi)}: --start-time / --end-time); its epochs span {has}")
-        if name == rover:
-            n_outside = int(distinct_times(t[~keep]).size)
-        out[name] = stations[name]._replace(obs=obs[keep].reset_index(drop=True))
-    return out, n_outside
+    t_b, t_r = (stations[n].obs["time_gps_s"].to_numpy(dtype="float64") for n in (master, rover))
+    keep_b, keep_r = pair_in_window(t_b, t_r, lo, hi, opt.sync_tol_s, opt.max_age_s,
+                                    (f"{shown[master]} ({master})", f"{shown[rover]} ({rover})"))
+    out = dict(stations)
+    for n, keep in ((master, keep_b), (rover, keep_r)):
+        out[n] = stations[n]._replace(obs=stations[n].obs[keep].reset_index(drop=True))
+    return out, int(distinct_times(t_r[~keep_r]).size)
 
 
 def _with_antenna_models(stations: dict, nav, order: tuple, positions: dict, shown: dict, antex, types: dict,

@@ -32,7 +32,7 @@ from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, rec
 from cdgps_cli.measurement.code_steps import code_steps_warning
 from cdgps_cli.measurement.channel_screen import naming_screened, without_unusable_channels
 from cdgps_cli.measurement.slips import unflagged_slip_text
-from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, window_errors, window_text, with_dropped
+from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, pair_in_window, window_errors, with_dropped
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
@@ -148,19 +148,9 @@ def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_pat
     lo, hi = opt["start_gps_s"], opt["end_gps_s"]
     if lo is None and hi is None:
         return b, r, hr, 0
-    lo, hi = -np.inf if lo is None else float(lo), np.inf if hi is None else float(hi)
     tol, tr = float(opt["sync_tol_s"]), r["time_gps_s"].to_numpy()
-    want = window_text(opt["start_gps_s"], opt["end_gps_s"])
-    keep = in_window(tr, lo, hi, tol)
-    age = float(opt["max_age_s"])           # the base: where the window's epochs find their pairs and bridges
-    kb = in_window(b["time_gps_s"].to_numpy(), lo - age, hi + age, tol)
-    for df, k, path, who in ((r, keep, rover_path, "rover"), (b, kb, base_path, "base")):
-        if not k.any():
-            span = time_span(df["time_gps_s"].to_numpy())
-            has = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no epoch"
-            near = "" if who == "rover" else f" or within max_age_s ({age:g} s) of it"
-            raise CdgpsError(f"{path} ({who}): no epoch in the window asked for{near} ({want}: --start-time / "
-                             f"--end-time); its epochs span {has}")
+    kb, keep = pair_in_window(b["time_gps_s"].to_numpy(), tr, lo, hi, tol, float(opt["max_age_s"]),
+                              (f"{base_path} (base)", f"{rover_path} (rover)"))
     listed = hr.get("file_epoch_times")
     all_t = distinct_times(tr) if listed is None else np.asarray(listed.t, dtype=np.float64)
     n_outside = int(np.sum(~in_window(all_t, lo, hi, tol)))
