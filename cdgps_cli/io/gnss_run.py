@@ -55,7 +55,7 @@ from cdgps_cli.core.constants import MAX_EPHEMERIS_AGE_S
 from cdgps_cli.core.gps_time import gps_time_str, spans_meet, time_span
 from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
-from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, pieces_text
+from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, merge_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths, one_file_for_two_receivers
 from cdgps_cli.io.rinex import end_padded_text, read_rinex_nav, read_rinex_obs, repeated_headers_text
 from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
@@ -558,8 +558,9 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
             tabs, paths = [read_ubx_signals(pieces_text(paths), signals,
                                             data=b"".join(ubx_bytes(q) for q in paths))], [pieces_text(paths)]
         else:
+            split = (rx.info.get("signals_by_file") if isinstance(rx.info, dict) else None) or [signals] * len(paths)
             tabs = [read_ubx_signals(q, signals) if kind == "ubx"
-                    else read_rinex_signals(q, signals, glonass_k, attributes=attrs[n])[1] for q in paths]
+                    else read_rinex_signals(q, sub, glonass_k, attributes=attrs[n])[1] for q, sub in zip(paths, split)]
         if kind == "ubx":             # RXM-RAWX's freqId: the numbers a RINEX file without its slots needs
             for t in tabs:
                 for sat, k in glonass_numbers(t).items():
@@ -568,7 +569,8 @@ def _read_signal_tables(signals, receivers: dict, files: dict, say, glonass_k: d
             unknown = t.attrs.get("glonass_without_frequency")
             if unknown and warnings is not None:
                 warnings.append(glonass_without_frequency_text(f"{q} ({n})", unknown))
-        tab = tabs[0] if len(tabs) == 1 else join_signal_tables(n, tabs, paths)
+        by_system = isinstance(rx.info, dict) and rx.info.get("signals_by_file")
+        tab = tabs[0] if len(tabs) == 1 else merge_signal_tables(tabs) if by_system else join_signal_tables(n, tabs, paths)
         tab = first_of_repeated_epochs(tab)[0]        # an epoch written twice: the first (the L1 reader's warning says)
         refuse_absent_signals(signals, tab, p, n)
         rx.signals = tab
@@ -712,19 +714,29 @@ def _ingest_files(cfg: GnssConfig, rinex: dict | None, ubx: dict | None) -> tupl
     return files, pieces, shared
 
 
-def _files_by_system_said(exc: CdgpsError, name: str, kind: str, paths: list, signals) -> CdgpsError:
-    """A reading error of an antenna's files, said again when the files hold its systems side by side (a file per
-    system, as gnss-sdr writes them: :func:`~cdgps_cli.io.rinex_signals.signals_by_file`; looked at only once a file
-    failed): ``ingest`` joins a receiver's files one after the other in time, ``rtk`` merges such files."""
+def _files_by_system(exc: CdgpsError, kind: str, paths: list, signals) -> list:
+    """Each file's signals when a receiver's RINEX files hold its systems side by side (a file per system, as gnss-sdr
+    writes them: :func:`~cdgps_cli.io.rinex_signals.signals_by_file`; looked at only once a file failed to read as a
+    piece of one record); else the reading error ``exc`` is raised."""
     from cdgps_cli.io.rinex_signals import signals_by_file  # noqa: PLC0415
 
-    split = signals_by_file(paths, list(signals or ("G:L1",))) if kind == "rinex" else None
+    split = signals_by_file(paths, list(signals)) if kind == "rinex" and signals else None
     if split is None:
-        return exc
-    return CdgpsError(f"{pieces_text(paths)} ({name}): its files hold its systems side by side ("
-                      + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split))
-                      + "): ingest joins a receiver's files one after the other in time; merge them into one RINEX "
-                      "file, or solve the pair with 'cdgps rtk --rover A --rover B', which merges them")
+        raise exc
+    return split
+
+
+def _merged_by_system(n: str, kind: str, paths: list, split: list, l1_opt: bool, strict: bool) -> tuple:
+    """A receiver from its files of one system each (:func:`~cdgps_cli.io.gnss_sequence.merge_systems`): each read
+    without needing GPS L1, the merged record then holding GPS L1 phase unless the run's epochs are anchored on
+    another signal.  (receiver, join record, warnings)."""
+    from cdgps_cli.io.gnss_sequence import merge_systems  # noqa: PLC0415
+
+    rxs = [read_receiver_file(n, kind, q, gps_l1_optional=True, strict=strict) for q in paths]
+    rx, join, said = merge_systems(n, rxs, paths, split)
+    if not l1_opt:
+        refuse_no_l1_phase(Path(paths[0]), kind, rx.header, rx.raw)
+    return rx, join, said
 
 
 def _refuse_overwriting_an_input(out_path: Path, pieces: dict, nav_list: list) -> None:
@@ -757,7 +769,10 @@ def _read_receivers(cfg: GnssConfig, files: dict, pieces: dict, say, strict: boo
         try:
             rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
         except CdgpsError as exc:
-            raise _files_by_system_said(exc, n, kind, pieces[n], cfg.signals) from None
+            split = _files_by_system(exc, kind, pieces[n], cfg.signals)
+            receivers[n], joins[n], w = _merged_by_system(n, kind, pieces[n], split, l1_opt, strict)
+            warnings.extend(w)
+            continue
         receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))

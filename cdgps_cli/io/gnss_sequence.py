@@ -30,7 +30,7 @@ from cdgps_cli.core.gps_time import gps_time_str, sampling_interval_s
 from cdgps_cli.io.log_sequence import join_tables
 
 __all__ = ["check_same_receiver", "refuse_another_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
-           "ubx_sequence_ephemerides"]
+           "ubx_sequence_ephemerides", "merge_systems", "merge_signal_tables", "refuse_spans_apart"]
 
 _MUST_AGREE = ("receiver_type", "marker_name", "antenna_type", "l1_obs_types")
 _MAY_DIFFER = ("version", "obs_types", "approx_position_xyz_m")
@@ -193,6 +193,52 @@ def join_receivers(name: str, rxs: list, paths: list, ubx_nav=None) -> tuple:
                               else ubx_nav(order))
     out = type(rx0)(rx0.name, rx0.format, pieces_text([Path(p).name for p in paths_o]), header, raw, info, nav)
     return out, join, warnings, order
+
+
+def merge_systems(name: str, rxs: list, paths: list, split: list) -> tuple:
+    """One :class:`~cdgps_cli.io.gnss_run.GnssReceiver` of a receiver's RINEX files that hold its systems side by side
+    (a file per system, as gnss-sdr writes them: ``split``, each file's signals,
+    :func:`~cdgps_cli.io.rinex_signals.signals_by_file`): the raw tables' rows merged epoch by epoch (in time order,
+    the files' order within an epoch), the header of the first file with GPS rows (else the first), its epoch count
+    that of the union; ``info["signals_by_file"]`` keeps ``split`` for the signal tables.  Returns (receiver, join
+    record, warnings).  CdgpsError when their spans do not meet or they are not of one receiver."""
+    refuse_spans_apart(name, paths, split, [rx.raw["time_gps_s"].to_numpy() for rx in rxs])
+    refuse_another_receiver(name, [rx.header for rx in rxs], paths, ("marker_name", "receiver_type", "antenna_type"))
+    raw = pd.concat([rx.raw for rx in rxs], ignore_index=True)
+    raw = raw.iloc[np.argsort(raw["time_gps_s"].to_numpy(), kind="stable")].reset_index(drop=True)
+    lead = next((i for i, rx in enumerate(rxs) if len(rx.raw)), 0)
+    rx0 = rxs[lead]
+    header = dict(rx0.header)
+    header["files"] = [Path(p).name for p in paths]
+    if "n_epochs" in header:
+        header["n_epochs"] = int(np.unique(raw["time_gps_s"].to_numpy()).size)
+    info = _merged_info([rx0.info, *[r.info for i, r in enumerate(rxs) if i != lead]],
+                        {"files": [{"file": Path(p).name, "signals": list(sub)} for p, sub in zip(paths, split)],
+                         "join": {"gaps": [], "overlaps": []}})
+    info["signals_by_file"] = [list(sub) for sub in split]
+    said = [f"{pieces_text([Path(p).name for p in paths])} ({name}): one receiver's systems in files of their own ("
+            + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split)) + "): merged epoch by epoch"]
+    out = type(rx0)(rx0.name, rx0.format, pieces_text([Path(p).name for p in paths]), header, raw, info, None)
+    return out, {"files": info["files"], "gaps": [], "overlaps": []}, said
+
+
+def refuse_spans_apart(name: str, paths: list, split: list, times: list) -> None:
+    """CdgpsError when a receiver's files of one system each (``split``: each file's signals) do not cover one span
+    (``times``: each file's epoch times, GPS s; a file without any counts for none): such files are written over the
+    same time."""
+    spans = [(float(np.min(t)), float(np.max(t))) for t in times if len(t)]
+    if spans and max(a for a, _ in spans) > min(b for _, b in spans):
+        raise CdgpsError(f"{pieces_text(paths)} ({name}): each file holds other systems ("
+                         + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split))
+                         + ") but their spans do not meet: a receiver's files of one system each cover the same time")
+
+
+def merge_signal_tables(tables: list) -> pd.DataFrame:
+    """The signal tables of a receiver's files of one system each (:func:`merge_systems`), merged epoch by epoch."""
+    tab = pd.concat(tables, ignore_index=True)
+    tab = tab.iloc[np.argsort(tab["time_gps_s"].to_numpy(), kind="stable")].reset_index(drop=True)
+    tab.attrs = {}
+    return tab
 
 
 def ubx_sequence_ephemerides(paths, week_ref) -> tuple:

@@ -34,7 +34,7 @@ from cdgps_cli.measurement.channel_screen import naming_screened, without_unusab
 from cdgps_cli.measurement.slips import unflagged_slip_text
 from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, pair_in_window, window_errors, with_dropped
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.io.gnss_sequence import pieces_text, refuse_another_receiver
+from cdgps_cli.io.gnss_sequence import merge_signal_tables, pieces_text, refuse_another_receiver, refuse_spans_apart
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav, repeated_headers_text
 from cdgps_cli.io.rinex_signals import (signals_by_file, first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
@@ -939,16 +939,10 @@ def _merged_systems(files: list, split: list, glo_k, who: str, warnings: list,
     header of the first file, its epochs those of every file.  CdgpsError when the files do not cover one span (a
     file per system is written over the same time) or are not of one receiver."""
     reads = [_read_observations(p, sub, glo_k, who, warnings, attributes) for p, sub in zip(files, split)]
-    spans = [time_span(df["time_gps_s"].to_numpy()) for _, df in reads]
-    if any(sp is None for sp in spans) or max(sp[0] for sp in spans) > min(sp[1] for sp in spans):
-        raise CdgpsError(f"{pieces_text(files)} ({who}): each file holds other systems ("
-                         + "; ".join(f"{p}: {', '.join(sub)}" for p, sub in zip(files, split))
-                         + ") but their spans do not meet: a receiver's files of one system each cover the same time")
+    refuse_spans_apart(who, files, split, [df["time_gps_s"].to_numpy() for _, df in reads])
     refuse_another_receiver(who, [h for h, _ in reads], files, tuple(f for f in ONE_RECEIVER_FIELDS
                                                                     if f != "signal_codes"))
-    tab = pd.concat([df for _, df in reads], ignore_index=True)
-    tab = tab.iloc[np.argsort(tab["time_gps_s"].to_numpy(), kind="stable")].reset_index(drop=True)
-    tab.attrs = {}
+    tab = merge_signal_tables([df for _, df in reads])
     warnings.append(f"{pieces_text(files)} ({who}): one receiver's systems in files of their own ("
                     + "; ".join(f"{Path(str(p)).name}: {', '.join(sub)}" for p, sub in zip(files, split))
                     + "): merged epoch by epoch")

@@ -71,12 +71,22 @@ def test_files_of_one_system_each_whose_spans_do_not_meet_are_refused(split):
     assert not out.exists()
 
 
-def test_ingest_says_it_joins_files_in_time_and_names_rtk(split):
-    """``ingest`` joins a receiver's files one after the other in time; files holding its systems side by side are
-    refused saying so (it named the Galileo file's missing GPS types) and naming ``rtk``, which merges them."""
+def test_ingest_and_init_take_them_as_the_whole_file(split):
+    """``ingest`` merges them as ``rtk`` does (the same GNSS path): ``init`` on the run of the split files gives the
+    whole file's run's integers and static solution, bit for bit."""
     d = split
-    r = run_cli("-q", "ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_g.obs'}",
-                "--rinex", f"rover={d / 'rover_e.obs'}", "--nav", MOSAIC_DIR / "base.nav", "--master", "base",
-                "-o", d / "run.mcap")
-    assert r.exit_code == 2 and "its files hold its systems side by side" in r.output, r.output
-    assert "cdgps rtk --rover A --rover B" in r.output and not (d / "run.mcap").exists()
+    inits = {}
+    for name, rovers in (("whole", [MOSAIC_DIR / "rover.obs"]), ("parts", [d / "rover_g.obs", d / "rover_e.obs"])):
+        args = ["ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}"]
+        for r in rovers:
+            args += ["--rinex", f"rover={r}"]
+        args += ["--nav", MOSAIC_DIR / "base.nav", "--master", "base", "--signals", "G:L1,E:E1", "-o", d / f"{name}.mcap"]
+        r = run_cli("-q", *args)
+        assert r.exit_code == 0, r.output
+        if name == "parts":
+            assert "one receiver's systems in files of their own" in r.output
+        r = run_cli("-q", "init", d / f"{name}.mcap", "-o", d / f"{name}_init.json")
+        assert r.exit_code == 0, r.output
+        inits[name] = json.loads((d / f"{name}_init.json").read_text())["rovers"]["rover"]
+    for key in ("solution", "states", "sigma", "rover_ecef_m", "n_fixed", "n_estimated", "ratio"):
+        assert inits["parts"][key] == inits["whole"][key], key
