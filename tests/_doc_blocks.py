@@ -252,7 +252,8 @@ def _run_cdgps(block: Block, words: list[str], work: Path) -> None:
     for target in _outputs(args):                 # absolute: a cluster's paths (--print-job-script writes none)
         if Path(target).is_absolute():
             continue
-        assert (work / target).exists(), f"{block.where}: `{text}` exited 0 but wrote no {target}"
+        first = target.format(k=0) if "{k" in target else target       # (init --every: a pattern of the windows)
+        assert (work / first).exists(), f"{block.where}: `{text}` exited 0 but wrote no {first}"
 
 
 def _redirect(args: list[str]) -> tuple[list[str], str | None]:

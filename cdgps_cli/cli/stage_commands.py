@@ -4,6 +4,7 @@ static/spectrum (structure runs and GNSS runs alike); each a thin shell over its
 from __future__ import annotations
 
 import math
+import re
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -279,6 +280,11 @@ def _placement_options(f):
               help="Window start, s (default: automatic; GNSS runs: from the record's first epoch, default 0).")
 @click.option("--duration", "duration_s", type=float, default=None,
               help="Window length, s (default: 60 s; GNSS runs: to the record's end; estimate then uses the same window).")
+@click.option("--every", "every_s", type=float, default=None,
+              help="GNSS runs: an INIT per window of this many seconds from the record's first epoch (over --start "
+                   "… --start + --duration of it), each solved alone; -o is then a pattern with {k}, the window's index "
+                   "(init-{k:03d}.json), for 'cdgps estimate RUN --init \'init-*.json\''. A window without "
+                   "observations of a receiver is skipped and said.")
 @click.option("--no-process-noise", is_flag=True, help="1995 variant: no process noise in the batch.")
 @click.option("--float-only", is_flag=True, help="Do not fix integers (float biases only).")
 @click.option("--ratio", "ratio_threshold", type=float, default=RATIO_THRESHOLD, show_default=True, help="Ratio-test threshold.")
@@ -301,7 +307,7 @@ def _placement_options(f):
 @click.option("-o", "--output", "output", required=True, type=click.Path(dir_okay=False), help="INIT.json to write.")
 @click.option("--json", "as_json", is_flag=True, help="Also print INIT.json on stdout.")
 @click.pass_context
-def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, ratio_threshold, no_partial,
+def init_cmd(ctx, run_mcap, start_s, duration_s, every_s, no_process_noise, float_only, ratio_threshold, no_partial,
              starts, max_iterations, sigma_m, multipath_sigma_m, multipath_time_constant_s, output, as_json,
              structure=None, x_axis_azimuth_deg=X_AXIS_AZIMUTH_DEG, receiver_map=()):
     """Batch bias initialization (Eq. 9-15) with LAMBDA integer fixing → INIT.json.
@@ -311,7 +317,19 @@ def init_cmd(ctx, run_mcap, start_s, duration_s, no_process_noise, float_only, r
     """
     from cdgps_cli.io.file_checks import GNSS_RUN, RUNS, require_kind
 
-    if require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN:      # (the file's metadata read once)
+    gnss = require_kind(run_mcap, RUNS, "RUN_MCAP") == GNSS_RUN    # (the file's metadata read once)
+    if every_s is not None:
+        if not gnss or structure is not None or receiver_map:
+            raise CdgpsError("--every: windows of a GNSS run's record (not with --structure / --receiver, nor on a "
+                             "structure run)")
+        _init_gnss_windows(ctx, run_mcap, every_s, start_s, duration_s, float_only, ratio_threshold, no_partial,
+                           output, as_json, {"--no-process-noise": no_process_noise, "--sigma-m": sigma_m is not None,
+                                             "--starts": starts != INIT_STARTS,
+                                             "--max-iterations": max_iterations != INIT_MAX_ITERATIONS,
+                                             "--multipath-sigma-m": multipath_sigma_m is not None,
+                                             "--multipath-tau-s": multipath_time_constant_s is not None})
+        return
+    if gnss:
         _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json,
                    structure=(structure, x_axis_azimuth_deg, receiver_map) if (structure or receiver_map) else None,
                    window_s=None if start_s is None and duration_s is None else (start_s or 0.0, duration_s),
@@ -1026,16 +1044,10 @@ def _reject_structure_options(given: dict, what: str) -> None:
                          f"(see docs/gnss-pipeline.md)")
 
 
-def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only, structure=None,
-               window_s=None):
+def _init_options(ctx, ratio_threshold, no_partial, float_only) -> dict:
+    """The GNSS init's option overrides of the flags given (gnss_init's ``options``)."""
     from click.core import ParameterSource
 
-    from cdgps_cli.io.atomic import file_sha256
-    from cdgps_cli.pipeline.gnss import gnss_init
-    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
-
-    _reject_structure_options(structure_only, "'cdgps init'")
-    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS, window_s=window_s)
     over = {}
     if ctx.get_parameter_source("ratio_threshold") != ParameterSource.DEFAULT:
         over["ratio_threshold"] = ratio_threshold
@@ -1043,6 +1055,40 @@ def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, a
         over["partial"] = False
     if float_only:
         over["fix"] = False
+    return over
+
+
+def _init_gnss_windows(ctx, run_mcap, every_s, start_s, duration_s, float_only, ratio_threshold, no_partial, output,
+                       as_json, structure_only) -> None:
+    """``cdgps init --every S``: an INIT per window (pipeline/gnss_init_windows)."""
+    from cdgps_cli.pipeline.gnss_init_windows import init_windows
+
+    _reject_structure_options(structure_only, "'cdgps init'")
+    say = None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True))
+    s = init_windows(run_mcap, every_s, output, start_s=start_s or 0.0, duration_s=duration_s,
+                     options=_init_options(ctx, ratio_threshold, no_partial, float_only), progress=say)
+    for w in s["windows"]:
+        if w["file"] is None:
+            _warn(f"window {w['k']} ({w['start_s']:g} s …) skipped: {w['skipped']}")
+            continue
+        _say(ctx, f"{w['file']}: " + "; ".join(
+            f"{r} {v['solution']}, {v['n_fixed']} of {v['n_estimated']} integers" for r, v in w["rovers"].items()))
+    glob = re.sub(r"\{k[^}]*\}", "*", output)
+    _say(ctx, f"wrote {len(s['written'])} INITs of {len(s['windows'])} windows of {every_s:g} s; one STATES over "
+              f"them: cdgps estimate {run_mcap} --init '{glob}' -o STATES.mcap")
+    if as_json:
+        _emit_json(s)
+
+
+def _init_gnss(ctx, run_mcap, float_only, ratio_threshold, no_partial, output, as_json, structure_only, structure=None,
+               window_s=None):
+    from cdgps_cli.io.atomic import file_sha256
+    from cdgps_cli.pipeline.gnss import gnss_init
+    from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, read_gnss_run
+
+    _reject_structure_options(structure_only, "'cdgps init'")
+    run = read_gnss_run(run_mcap, columns=SOLVER_COLUMNS, window_s=window_s)
+    over = _init_options(ctx, ratio_threshold, no_partial, float_only)
     say = None if ctx.obj.get("quiet") else (lambda m: click.echo(m, err=True))
     modal = _structure_options(*structure) if structure is not None else None
     res = gnss_init(run, options=over, progress=say)

@@ -1503,12 +1503,29 @@ def _receiver_rows(window: dict, master: bool) -> tuple:
     return window["start_gps_s"] - m, window["end_gps_s"] + m
 
 
+class EmptyWindow(CdgpsError):
+    """A window of a GNSS run that holds no observation of one of its receivers (:func:`read_gnss_run`)."""
+
+
+def record_span(path: str | Path) -> tuple[float, float]:
+    """(first, last) epoch of a GNSS run's record, GPS s: the earliest and latest time tag of every receiver's tables,
+    from their block indexes (the observations are not decoded)."""
+    c = read_mcap(path, topics=[], attachments=_not_a_table)
+    if not is_gnss_run(c):
+        raise CdgpsError(f"{path}: not a GNSS RUN.mcap (no {RECEIVERS_ATTACHMENT}); is this a run from "
+                         f"'cdgps ingest --rinex/--ubx'?")
+    cfg = parse_gnss_config(c.attachments[CONFIG_ATTACHMENT].decode("utf-8"), f"{path}:{CONFIG_ATTACHMENT}")
+    n = len(json.loads(c.attachments[RECEIVERS_ATTACHMENT]))
+    window, last = _record_window(c, path, n, cfg, None, (0.0, None))
+    return float(window["start_gps_s"]), float(last if last is not None else window["start_gps_s"])
+
+
 def _check_window_rows(path, name, tab: pd.DataFrame, window: dict, span) -> None:
-    """CdgpsError when receiver ``name``'s table read in ``window`` has no row (naming its record's span)."""
+    """:class:`EmptyWindow` when receiver ``name``'s table read in ``window`` has no row (naming its record's span)."""
     if len(tab):
         return
     rec = f"{gps_time_str(span[0])} – {gps_time_str(span[1])}" if span else "no observations"
-    raise CdgpsError(f"{path}: the window {gps_time_str(window['start_gps_s'])} – {gps_time_str(window['end_gps_s'])} "
+    raise EmptyWindow(f"{path}: the window {gps_time_str(window['start_gps_s'])} – {gps_time_str(window['end_gps_s'])} "
                      f"({window['start_s']:g} s after the record's first epoch, {window['duration_s']:g} s long) holds "
                      f"no observation of {name} (its record: {rec})")
 
