@@ -717,12 +717,9 @@ def _return_freed_memory() -> None:
     serves allocations below its mmap threshold from the heap, and raises that threshold each time a large block is
     freed, so a window's arrays of a few MiB stay on the heap and its peak would otherwise add up over the windows
     (6 h of 10 Hz with multipath states: 510 MiB against 364 MiB)."""
-    try:
-        import ctypes  # noqa: PLC0415
-        libc = ctypes.CDLL("libc.so.6")
-        libc.malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
+    from cdgps_cli.core.heap import trim  # noqa: PLC0415
+
+    trim()
 
 
 def _windows_in_order(windows: list) -> list:

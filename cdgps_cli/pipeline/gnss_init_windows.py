@@ -16,6 +16,7 @@ import os
 from pathlib import Path
 
 from cdgps_cli.core.errors import CdgpsError
+from cdgps_cli.core.heap import trim
 from cdgps_cli.io.atomic import file_sha256
 from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, EmptyWindow, read_gnss_run, record_span
 from cdgps_cli.pipeline.gnss import gnss_init
@@ -105,6 +106,8 @@ def init_windows(run_mcap, every_s: float, pattern: str, *, start_s: float = 0.0
             rows.append({"k": k, "start_s": s, "duration_s": d, "file": None, "skipped": str(exc)})
             continue
         res = gnss_init(run, options=options)
+        del run
+        trim()                               # (a window's freed arrays given back: memory one window's, not the day's)
         res["run_sha256"] = sha
         texts.append((name, json.dumps(res, indent=2) + "\n"))
         rows.append({"k": k, "start_s": s, "duration_s": d, "file": name,
