@@ -766,14 +766,14 @@ def _read_receivers(cfg: GnssConfig, files: dict, pieces: dict, say, strict: boo
         if len(pieces[n]) == 1:
             receivers[n] = read_receiver_file(n, kind, pieces[n][0], strict=strict, gps_l1_optional=l1_opt)
             continue
-        try:
+        try:                   # (a receiver's files of one system each: merged, once they fail as pieces in time)
             rxs = [read_receiver_file(n, kind, q, gps_l1_optional=l1_opt) for q in pieces[n]]   # (--strict: below)
+            receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         except CdgpsError as exc:
             split = _files_by_system(exc, kind, pieces[n], cfg.signals)
             receivers[n], joins[n], w = _merged_by_system(n, kind, pieces[n], split, l1_opt, strict)
             warnings.extend(w)
             continue
-        receivers[n], joins[n], w, order = join_receivers(n, rxs, pieces[n])
         pieces[n] = [pieces[n][i] for i in order]
         files[n] = (kind, pieces_text(pieces[n]))
         if kind == "ubx":

@@ -30,7 +30,8 @@ from cdgps_cli.core.gps_time import gps_time_str, sampling_interval_s
 from cdgps_cli.io.log_sequence import join_tables
 
 __all__ = ["check_same_receiver", "refuse_another_receiver", "join_receivers", "pieces_text", "join_signal_tables", "ubx_bytes",
-           "ubx_sequence_ephemerides", "merge_systems", "merge_signal_tables", "refuse_spans_apart"]
+           "ubx_sequence_ephemerides", "merge_systems", "merge_signal_tables", "refuse_spans_apart",
+           "systems_merged_text"]
 
 _MUST_AGREE = ("receiver_type", "marker_name", "antenna_type", "l1_obs_types")
 _MAY_DIFFER = ("version", "obs_types", "approx_position_xyz_m")
@@ -199,7 +200,7 @@ def merge_systems(name: str, rxs: list, paths: list, split: list) -> tuple:
     """One :class:`~cdgps_cli.io.gnss_run.GnssReceiver` of a receiver's RINEX files that hold its systems side by side
     (a file per system, as gnss-sdr writes them: ``split``, each file's signals,
     :func:`~cdgps_cli.io.rinex_signals.signals_by_file`): the raw tables' rows merged epoch by epoch (in time order,
-    the files' order within an epoch), the header of the first file with GPS rows (else the first), its epoch count
+    the files' order within an epoch), the header of the first file with rows in its raw (GPS L1) table (else the first), its epoch count
     that of the union; ``info["signals_by_file"]`` keeps ``split`` for the signal tables.  Returns (receiver, join
     record, warnings).  CdgpsError when their spans do not meet or they are not of one receiver."""
     refuse_spans_apart(name, paths, split, [rx.raw["time_gps_s"].to_numpy() for rx in rxs])
@@ -216,8 +217,7 @@ def merge_systems(name: str, rxs: list, paths: list, split: list) -> tuple:
                         {"files": [{"file": Path(p).name, "signals": list(sub)} for p, sub in zip(paths, split)],
                          "join": {"gaps": [], "overlaps": []}})
     info["signals_by_file"] = [list(sub) for sub in split]
-    said = [f"{pieces_text([Path(p).name for p in paths])} ({name}): one receiver's systems in files of their own ("
-            + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split)) + "): merged epoch by epoch"]
+    said = [systems_merged_text(name, paths, split)]
     out = type(rx0)(rx0.name, rx0.format, pieces_text([Path(p).name for p in paths]), header, raw, info, None)
     return out, {"files": info["files"], "gaps": [], "overlaps": []}, said
 
@@ -231,6 +231,12 @@ def refuse_spans_apart(name: str, paths: list, split: list, times: list) -> None
         raise CdgpsError(f"{pieces_text(paths)} ({name}): each file holds other systems ("
                          + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split))
                          + ") but their spans do not meet: a receiver's files of one system each cover the same time")
+
+
+def systems_merged_text(name: str, paths: list, split: list) -> str:
+    """The warning that a receiver's files of one system each (``split``: each file's signals) were merged."""
+    return (f"{pieces_text([Path(p).name for p in paths])} ({name}): one receiver's systems in files of their own ("
+            + "; ".join(f"{Path(p).name}: {', '.join(sub)}" for p, sub in zip(paths, split)) + "): merged epoch by epoch")
 
 
 def merge_signal_tables(tables: list) -> pd.DataFrame:

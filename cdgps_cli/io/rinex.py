@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 import zlib
 from pathlib import Path
 
@@ -107,7 +108,10 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
         except ImportError:  # pragma: no cover - a declared dependency
             raise CdgpsError(f"{p}: compressed RINEX needs the 'hatanaka' package (pip install hatanaka)") from None
         try:
-            data = hatanaka.decompress(data)
+            with warnings.catch_warnings(record=True) as said:         # (crx2rnx's notes: said as cdgps warnings)
+                warnings.simplefilter("always")
+                data = hatanaka.decompress(data)
+            notes = tuple(dict.fromkeys(str(w.message) for w in said))
         except (hatanaka.HatanakaException, ValueError, OSError, EOFError, zlib.error, RuntimeError) as exc:
             what = "Hatanaka (Compact RINEX)" if crinex else "compressed"
             msg = str(exc).strip().splitlines()
@@ -115,7 +119,11 @@ def _read_bytes(path: str | Path) -> tuple[bytes, bool]:
         if not data:
             raise CdgpsError(f"{p}: decompressed to nothing; truncated or corrupt compressed file")
     _refuse_a_value_cut_by_the_end(data, p)
-    return _with_the_last_blank_lines(_without_repeated_headers(data, p)), compressed or crinex
+    out = _with_the_last_blank_lines(_without_repeated_headers(data, p))
+    if (compressed or crinex) and notes:
+        out = out if isinstance(out, EndPadded) else EndPadded(out)
+        out.decompress_notes = notes
+    return out, compressed or crinex
 
 
 #: a RINEX 2 epoch line: a date and time (yy mm dd hh mm ss.sssssss), then the flag and the number of satellites
@@ -133,10 +141,14 @@ class EndPadded(bytes):
 
     end_padded_lines: int = 0
     repeated_headers: tuple = ()
+    decompress_notes: tuple = ()
 
 
 def repeated_headers_text(who: str, lines) -> str:
-    """The warning for a file read without the second headers that started at ``lines``."""
+    """The warning for a file read without the second headers that started at ``lines`` (or, a Hatanaka file,
+    ``lines`` the decompressor's notes: its own reading of joined files)."""
+    if lines and isinstance(lines[0], str):
+        return f"{who}: its Hatanaka decompression said: " + "; ".join(lines)
     return (f"{who}: a second header at line(s) {', '.join(map(str, lines))} (recordings joined one after the other): "
             f"its observation types are the first header's; read on as one record")
 
@@ -148,6 +160,34 @@ _LAYOUT_LABELS = (b"SYS / # / OBS TYPES", b"# / TYPES OF OBSERV")
 def _layout(head: bytes) -> list:
     """A header's observation-type lines (their first 60 columns), in order."""
     return [ln[:60].rstrip() for ln in head.split(b"\n") if ln[60:80].rstrip() in _LAYOUT_LABELS]
+
+
+def _in_event_block(data: bytes, start: int, v3: bool) -> bool:
+    """Whether the line at ``start`` is one of the special records of an event (epoch flag 2–5: header lines a
+    receiver writes within its records, RINEX 3 ``>`` … flag 4), counted by the last epoch line before it."""
+    if v3:
+        e = data.rfind(b"\n>", 0, start)
+        if e < 0:
+            return False
+        e += 1
+        flag, count = data[e + 31:e + 32], data[e + 32:e + 35]
+    else:
+        last = None
+        for m in _V2_EPOCH_ANY.finditer(data, max(0, start - _V2_TAIL_BYTES), start):
+            last = m
+        if last is None:
+            return False
+        e = last.start()
+        flag, count = data[e + 28:e + 29], data[e + 29:e + 32]
+    try:
+        f, n = int(flag), int(count)
+    except ValueError:
+        return False
+    return 2 <= f <= 5 and data.count(b"\n", e, start) <= n
+
+
+#: a RINEX 2 epoch line anywhere in a file (:data:`_V2_EPOCH_LINE` at a line start)
+_V2_EPOCH_ANY = re.compile(rb"(?m)^ [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d [ \d]\d\.\d{7}  [0-6][ \d]{2}\d")
 
 
 def _without_repeated_headers(data: bytes, path) -> bytes:
@@ -164,8 +204,12 @@ def _without_repeated_headers(data: bytes, path) -> bytes:
     if k < 0:
         return data
     layout, parts, pos, starts = (data[:21].split(), _layout(data[:head_end])), [], 0, []
+    v3 = data[:9].strip()[:1] not in (b"1", b"2")
     while k >= 0:
         start = data.rfind(b"\n", 0, k) + 1
+        if k - start != 60 or _in_event_block(data, start, v3):    # (a label elsewhere, or an event's header lines)
+            k = data.find(b"RINEX VERSION / TYPE", k + 1)
+            continue
         line = data.count(b"\n", 0, start) + 1
         end = data.find(b"END OF HEADER", k)
         if end < 0:
@@ -730,7 +774,7 @@ def _noting_end_padding(data: bytes, result: tuple) -> tuple:
     n = getattr(data, "end_padded_lines", 0)
     if n:
         result[0]["end_padded_lines"] = int(n)
-    again = getattr(data, "repeated_headers", ())
+    again = getattr(data, "repeated_headers", ()) or getattr(data, "decompress_notes", ())
     if again:
         result[0]["repeated_headers"] = list(again)
     return result

@@ -17,7 +17,8 @@ from pathlib import Path
 
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.heap import trim
-from cdgps_cli.io.atomic import file_sha256
+from cdgps_cli.io.atomic import (file_sha256, output_error, refuse_input_overwrite, refuse_output_collisions,
+                                 remove_stale_temporaries, sigterm_raises, temporary_name)
 from cdgps_cli.io.gnss_run import SOLVER_COLUMNS, EmptyWindow, read_gnss_run, record_span
 from cdgps_cli.pipeline.gnss import gnss_init
 
@@ -38,10 +39,11 @@ def window_starts(span_s: float, every_s: float, start_s: float = 0.0, duration_
     end = span_s if duration_s is None else min(span_s, start_s + duration_s)
     if start_s > span_s:
         raise CdgpsError(f"--start {start_s:g}: past the record's end ({span_s:g} s from its first epoch)")
-    out, t = [], start_s
-    while t < end or not out:
-        out.append(t)
-        t += every_s
+    n = max(1, math.ceil((end - start_s) / every_s))
+    if n > MAX_WINDOWS:
+        raise CdgpsError(f"--every {every_s:g}: {n} windows of {end - start_s:g} s; at most {MAX_WINDOWS} (choose a "
+                         f"longer window)")
+    out = [start_s + k * every_s for k in range(n)]               # (k·S, not a running sum: no drift)
     if len(out) > 1 and end - out[-1] < TAIL_SHARE * every_s:     # a short tail goes with the window before it
         out.pop()
     ends = [*out[1:], None if duration_s is None else end]
@@ -50,6 +52,8 @@ def window_starts(span_s: float, every_s: float, start_s: float = 0.0, duration_
 
 #: a record's tail shorter than this share of a window is solved with the window before it (not alone)
 TAIL_SHARE = 0.25
+#: the most windows one command cuts a record into (a day of 10 s windows is 8,640)
+MAX_WINDOWS = 10_000
 
 
 def _names(pattern: str, n: int) -> list:
@@ -60,7 +64,7 @@ def _names(pattern: str, n: int) -> list:
                          f"{{k}} for the window's index (e.g. init-{{k:03d}}.json)")
     try:
         names = [pattern.format(k=k) for k in range(n)]
-    except (KeyError, IndexError, ValueError) as exc:
+    except (KeyError, IndexError, ValueError, AttributeError, TypeError) as exc:
         raise CdgpsError(f"-o {pattern!r}: not a pattern of {{k}} alone ({exc})") from None
     if len(set(names)) != n:
         raise CdgpsError(f"-o {pattern!r}: windows would share a file; give {{k}} in the name")
@@ -96,6 +100,12 @@ def init_windows(run_mcap, every_s: float, pattern: str, *, start_s: float = 0.0
     first, last = record_span(run_mcap)
     spans = window_starts(last - first, float(every_s), float(start_s), duration_s)
     names = _names(pattern, len(spans))
+    outputs = [(f"-o {pattern} (window {k})", name, False) for k, name in enumerate(names)]
+    refuse_output_collisions(outputs)
+    refuse_input_overwrite(outputs, [("RUN_MCAP", run_mcap, False)])
+    folder = next((n for n in names if Path(n).is_dir()), None)
+    if folder is not None:
+        raise CdgpsError(f"-o {pattern}: {folder} is a folder; the INIT of a window is a file (nothing written)")
     sha = file_sha256(run_mcap)
     texts, rows = [], []
     for k, ((s, d), name) in enumerate(zip(spans, names)):
@@ -121,19 +131,26 @@ def init_windows(run_mcap, every_s: float, pattern: str, *, start_s: float = 0.0
 
 
 def _write_all(texts: list) -> None:
-    """Each (file, text) written whole, all or none: every text to a temporary beside its file first, then each moved
-    into place (an error before the moves leaves no file)."""
-    tmps = []
-    try:
-        for name, text in texts:
-            p = Path(name)
-            p.parent.mkdir(parents=True, exist_ok=True)          # (as every command's -o)
-            tmp = p.with_name(f".{p.name}.cdgps-tmp")
-            tmp.write_text(text)
-            tmps.append((tmp, p))
-    except OSError as exc:
-        for tmp, _ in tmps:
-            tmp.unlink(missing_ok=True)
-        raise CdgpsError(f"cannot write the INIT files: {exc.strerror or exc}") from None
-    for tmp, p in tmps:
-        os.replace(tmp, p)
+    """Each (file, text) written whole, all or none: every text to a temporary beside its file first
+    (:func:`~cdgps_cli.io.atomic.temporary_name`), then each moved into place; an error before the moves leaves no
+    file, and one during them (a folder where a file goes) is named with what was already moved."""
+    tmps, moved = [], []
+    with sigterm_raises():
+        try:
+            for name, text in texts:
+                p = Path(name)
+                p.parent.mkdir(parents=True, exist_ok=True)          # (as every command's -o)
+                remove_stale_temporaries(p)
+                tmp = temporary_name(p)
+                tmps.append((tmp, p))
+                tmp.write_text(text)
+            for tmp, p in tmps:
+                os.replace(tmp, p)
+                moved.append(str(p))
+        except OSError as exc:
+            err = output_error(p, exc)
+            raise CdgpsError(f"{err}" + (f" (written before it: {', '.join(moved)})" if moved else "")) from None
+        finally:
+            for tmp, _ in tmps:
+                if tmp.exists():
+                    tmp.unlink()

@@ -34,7 +34,8 @@ from cdgps_cli.measurement.channel_screen import naming_screened, without_unusab
 from cdgps_cli.measurement.slips import unflagged_slip_text
 from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, pair_in_window, window_errors, with_dropped
 from cdgps_cli.io.atomic import write_atomic
-from cdgps_cli.io.gnss_sequence import merge_signal_tables, pieces_text, refuse_another_receiver, refuse_spans_apart
+from cdgps_cli.io.gnss_sequence import (merge_signal_tables, pieces_text, refuse_another_receiver, refuse_spans_apart,
+                                       systems_merged_text)
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
 from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav, repeated_headers_text
 from cdgps_cli.io.rinex_signals import (signals_by_file, first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
@@ -943,9 +944,7 @@ def _merged_systems(files: list, split: list, glo_k, who: str, warnings: list,
     refuse_another_receiver(who, [h for h, _ in reads], files, tuple(f for f in ONE_RECEIVER_FIELDS
                                                                     if f != "signal_codes"))
     tab = merge_signal_tables([df for _, df in reads])
-    warnings.append(f"{pieces_text(files)} ({who}): one receiver's systems in files of their own ("
-                    + "; ".join(f"{Path(str(p)).name}: {', '.join(sub)}" for p, sub in zip(files, split))
-                    + "): merged epoch by epoch")
+    warnings.append(systems_merged_text(who, files, split))
     joined = _joined_file_epochs([h for h, _ in reads])
     codes = {k: v for h, _ in reads for k, v in (h.get("signal_codes") or {}).items()}
     return {**reads[0][0], "signal_codes": codes, "file_epochs": None if joined is None else int(joined.t.size),

@@ -75,3 +75,47 @@ def test_a_second_header_of_other_observation_types_is_refused_naming_its_line(t
     with pytest.raises(CdgpsError, match=rf"joined.obs: line {line}: a second header whose version, file type or "
                                          r"observation types are not the first's"):
         read_rinex_obs(tmp_path / "joined.obs")
+
+
+def test_an_events_header_lines_are_not_a_second_header(tmp_path):
+    """An event (epoch flag 4) whose special records repeat the file's version line is the receiver's own header
+    information, read as before; a header joined after it still is a second header (a review found both cut)."""
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    lines = (MOSAIC_DIR / "rover.obs").read_text().splitlines(keepends=True)
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    epochs = [i for i in range(end, len(lines)) if lines[i].startswith(">")]
+    c1, c2 = epochs[len(epochs) // 4], epochs[3 * len(epochs) // 4]
+    event = [lines[0], "RECORDING RESUMED".ljust(60) + "COMMENT\n"]
+    block = ">".ljust(31) + "4" + f"{len(event):3d}\n" + "".join(event)
+    head = "".join(lines[:end])
+    (tmp_path / "event.obs").write_text(head + "".join(lines[end:c1]) + block + "".join(lines[c1:]))
+    (tmp_path / "both.obs").write_text(head + "".join(lines[end:c1]) + block + "".join(lines[c1:c2]) + head
+                                       + "".join(lines[c2:]))
+    _, whole = read_rinex_obs(MOSAIC_DIR / "rover.obs")
+    h, ev = read_rinex_obs(tmp_path / "event.obs")
+    assert ev.equals(whole) and "repeated_headers" not in h
+    h, both = read_rinex_obs(tmp_path / "both.obs")
+    assert both.equals(whole) and len(h["repeated_headers"]) == 1
+
+
+def test_hatanaka_files_joined_are_read_and_the_decompressors_note_said(tmp_path):
+    """Compact RINEX files joined by ``cat``: crx2rnx reads on by itself; what it says is a cdgps warning (it was a
+    raw Python warning, twice)."""
+    import warnings  # noqa: PLC0415
+
+    import hatanaka  # noqa: PLC0415
+
+    if not MOSAIC_DIR.exists():
+        pytest.skip("../shared/data/real-pairs absent")
+    text = (MOSAIC_DIR / "rover.obs").read_text()
+    lines = text.splitlines(keepends=True)
+    end = next(i for i, ln in enumerate(lines) if ln[60:].strip() == "END OF HEADER") + 1
+    cut = [i for i in range(end, len(lines)) if lines[i].startswith(">")][150]
+    halves = ["".join(lines[:cut]), "".join(lines[:end] + lines[cut:])]
+    (tmp_path / "cat.crx").write_bytes(b"".join(hatanaka.rnx2crx(h.encode()) for h in halves))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                              # (none may reach Python's warnings)
+        h, joined = read_rinex_obs(tmp_path / "cat.crx")
+    assert joined.equals(read_rinex_obs(MOSAIC_DIR / "rover.obs")[1])
+    assert any("crx2rnx" in str(x) for x in h["repeated_headers"])

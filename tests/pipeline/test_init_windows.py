@@ -61,13 +61,31 @@ def test_a_window_without_observations_is_skipped_and_said(run):
     (("--every", "0", "-o", "w{k}.json"), "--every 0.0: expected a window length"),
     (("--every", "100", "--start", "400", "-o", "w{k}.json"), "--start 400: past the record's end"),
     (("--every", "100", "--sigma-m", "0.01", "-o", "w{k}.json"), "--sigma-m: structure-run option"),
-    (("--every", "100", "-o", "w{k}{k}.json", "--structure", "configs/testbed-1998.toml"), "--every: windows of a GNSS"),
+    (("--every", "100", "-o", "w{k}{k}.json", "--structure", "x.toml"), "--every: windows of a GNSS"),
+    (("--every", "1e-7", "-o", "w{k}.json"), "at most 10000 (choose a longer window)"),
+    (("--every", "100", "-o", "a-{k.foo}.json"), "not a pattern of {k} alone"),
+    (("--every", "100", "-o", "b-{k[0]}.json"), "not a pattern of {k} alone"),
 ])
 def test_bad_requests_exit_2_before_any_work_and_write_nothing(run, tmp_path, monkeypatch, args, said):
     monkeypatch.chdir(tmp_path)
     r = run_cli("-q", "init", run / "run.mcap", *args)
     assert r.exit_code == 2 and said in r.output and "Traceback" not in r.output, r.output
     assert not list(tmp_path.iterdir())
+
+
+def test_an_input_or_a_folder_where_an_init_goes_is_refused_before_any_work(run, tmp_path):
+    """A window's file that is the RUN itself (a review overwrote the RUN with ``-o 'w{k}.mcap'``), or a folder where a
+    window's file goes (it wrote the first and left temporaries): refused before any work, nothing written."""
+    import shutil  # noqa: PLC0415
+
+    shutil.copy(run / "run.mcap", tmp_path / "w0.mcap")
+    before = (tmp_path / "w0.mcap").read_bytes()
+    r = run_cli("-q", "init", tmp_path / "w0.mcap", "--every", "100", "-o", str(tmp_path / "w{k}.mcap"))
+    assert r.exit_code == 2 and "would overwrite an input" in r.output and (tmp_path / "w0.mcap").read_bytes() == before
+    (tmp_path / "q1.json").mkdir()
+    r = run_cli("-q", "init", run / "run.mcap", "--every", "100", "-o", str(tmp_path / "q{k}.json"))
+    assert r.exit_code == 2 and "q1.json is a folder" in r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["q1.json", "w0.mcap"]
 
 
 def test_window_starts():
@@ -78,3 +96,5 @@ def test_window_starts():
     assert window_starts(50, 100) == [(0.0, None)]
     with pytest.raises(CdgpsError, match="--duration -1"):
         window_starts(300, 100, 0, -1)
+    starts = [a for a, _ in window_starts(900, 0.1)]                       # k·S, no running sum's drift
+    assert starts[-1] == 0.1 * (len(starts) - 1) and starts[3] == 0.1 * 3

@@ -90,3 +90,14 @@ def test_ingest_and_init_take_them_as_the_whole_file(split):
         inits[name] = json.loads((d / f"{name}_init.json").read_text())["rovers"]["rover"]
     for key in ("solution", "states", "sigma", "rover_ecef_m", "n_fixed", "n_estimated", "ratio"):
         assert inits["parts"][key] == inits["whole"][key], key
+
+
+def test_ingest_merges_them_when_no_file_fails_alone(split):
+    """Signals that do not need GPS L1 (G:L2 and E:E1): every file reads alone, and the pieces' join in time is what
+    fails; the merge is tried there too (a review found ingest refusing what rtk merged)."""
+    d = split
+    r = run_cli("-q", "ingest", "--rinex", f"base={MOSAIC_DIR / 'base.obs'}", "--rinex", f"rover={d / 'rover_g.obs'}",
+                "--rinex", f"rover={d / 'rover_e.obs'}", "--nav", MOSAIC_DIR / "base.nav", "--master", "base",
+                "--signals", "G:L2,E:E1", "-o", d / "l2.mcap")
+    assert r.exit_code == 0 and "one receiver's systems in files of their own" in r.output, r.output
+    assert run_cli("-q", "init", d / "l2.mcap", "-o", d / "l2.json").exit_code == 0
