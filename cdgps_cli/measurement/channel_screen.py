@@ -30,6 +30,11 @@ def naming_screened(screened: list):
     try:
         yield
     except CdgpsError as exc:
-        if not screened:
+        if not screened or not any(w in str(exc) for w in _WANTING):
             raise
         raise CdgpsError(f"{exc} (channels left out before: {'; '.join(screened)})") from None
+
+
+#: words of the refusals that what the screen took out may explain (no phase, signal, satellite, DD, position …); a
+#: refusal of something else (a base without a position, a bad option) is said without the screen's notes
+_WANTING = ("phase", "signal", "satellite", "common", "double difference", "solvable", "no DD", "fewer than")
