@@ -57,7 +57,7 @@ from cdgps_cli.core.records import GLONASS_NAV_COLUMNS, NAV_COLUMNS
 from cdgps_cli.io.antex import header_antenna_type, model_from_json, model_to_json
 from cdgps_cli.io.gnss_sequence import join_receivers, join_signal_tables, merge_signal_tables, pieces_text
 from cdgps_cli.io.log_sequence import expand_paths, one_file_for_two_receivers
-from cdgps_cli.io.rinex import end_padded_text, read_rinex_nav, read_rinex_obs, repeated_headers_text
+from cdgps_cli.io.rinex import read_rinex_nav, read_rinex_obs, reading_notes
 from cdgps_cli.io.rinex_signals import out_of_order_text, repeated_epochs_text
 from cdgps_cli.io.ubx import INTEGRITY_COUNTS, integrity_problems, integrity_record, skipped_line
 from cdgps_cli.core.gps_time import distinct_times, nominal_interval_s, sampling_interval_s
@@ -263,10 +263,7 @@ def _receiver_warnings(n: str, path, rx: GnssReceiver) -> list[str]:
         out.append(repeated_epochs_text(f"{path} ({n})", [r["time_gps_s"] for r in rep], lines=[r["line"] for r in rep]))
     if back:
         out.append(out_of_order_text(f"{path} ({n})", len(back), back[0]["time_gps_s"]))
-    if header.get("end_padded_lines"):
-        out.append(end_padded_text(f"{path} ({n})", header["end_padded_lines"]))
-    if header.get("repeated_headers"):
-        out.append(repeated_headers_text(f"{path} ({n})", header["repeated_headers"]))
+    out.extend(reading_notes(header, f"{path} ({n})"))
     return out
 
 

@@ -145,12 +145,22 @@ class EndPadded(bytes):
 
 
 def repeated_headers_text(who: str, lines) -> str:
-    """The warning for a file read without the second headers that started at ``lines`` (or, a Hatanaka file,
-    ``lines`` the decompressor's notes: its own reading of joined files)."""
-    if lines and isinstance(lines[0], str):
-        return f"{who}: its Hatanaka decompression said: " + "; ".join(lines)
+    """The warning for a file read without the second headers that started at ``lines``."""
     return (f"{who}: a second header at line(s) {', '.join(map(str, lines))} (recordings joined one after the other): "
             f"its observation types are the first header's; read on as one record")
+
+
+def reading_notes(header: dict, who: str) -> list:
+    """The warnings of how a reader took a file (its header's ``end_padded_lines``, ``repeated_headers`` and
+    ``decompress_notes``, :func:`_noting_end_padding`): one place for every command that reads RINEX."""
+    out = []
+    if header.get("end_padded_lines"):
+        out.append(end_padded_text(who, header["end_padded_lines"]))
+    if header.get("repeated_headers"):
+        out.append(repeated_headers_text(who, header["repeated_headers"]))
+    if header.get("decompress_notes"):
+        out.append(f"{who}: its Hatanaka decompression said: " + "; ".join(header["decompress_notes"]))
+    return out
 
 
 #: header lines that say how the records are laid out: a second header must repeat them to be read on
@@ -774,9 +784,9 @@ def _noting_end_padding(data: bytes, result: tuple) -> tuple:
     n = getattr(data, "end_padded_lines", 0)
     if n:
         result[0]["end_padded_lines"] = int(n)
-    again = getattr(data, "repeated_headers", ()) or getattr(data, "decompress_notes", ())
-    if again:
-        result[0]["repeated_headers"] = list(again)
+    for key in ("repeated_headers", "decompress_notes"):
+        if getattr(data, key, ()):
+            result[0][key] = list(getattr(data, key))
     return result
 
 

@@ -80,16 +80,20 @@ def reversed_phase_channels(channel, time_s, phase_m, code_m, *, lag_s: float = 
         cm, cp = code[arc] - phase[arc], code[arc] + phase[arc]
         return (cm[j] - cm[i]) / dt, (cp[j] - cp[i]) / dt
 
-    kept, centres = [], []
+    kept, centres, about_0 = [], [], []
     for arc in arcs:
         u, v = rates(arc)
         if u.size >= min_pairs:
             kept.append(arc)
             centres.append((float(np.median(u)), float(np.median(v))))
+            about_0.append((np.median(np.abs(u)), np.median(np.abs(v))))
     drift = _common_drift(np.array(centres).reshape(-1, 2), min_rate_m_s)
-    for arc in kept:
-        u, v = rates(arc)
-        minus_rate[arc], plus_rate[arc] = np.median(np.abs(u - drift)), np.median(np.abs(v - drift))
+    for arc, at_0 in zip(kept, about_0):
+        if drift == 0.0:                    # (a sound receiver: the rates about 0, from the pass above)
+            minus_rate[arc], plus_rate[arc] = at_0
+        else:
+            u, v = rates(arc)
+            minus_rate[arc], plus_rate[arc] = np.median(np.abs(u - drift)), np.median(np.abs(v - drift))
     with np.errstate(invalid="ignore"):
         bad = (minus_rate > min_rate_m_s) & (plus_rate < ratio * minus_rate)
     return bad, minus_rate, plus_rate

@@ -15,7 +15,7 @@ import numpy as np
 from cdgps_cli.core.errors import CdgpsError
 from cdgps_cli.core.gps_time import gps_time_str, time_span
 
-__all__ = ["OUTSIDE_WINDOW", "window_errors", "in_window", "window_text", "with_dropped", "pair_in_window"]
+__all__ = ["OUTSIDE_WINDOW", "window_errors", "in_window", "window_text", "with_dropped", "pair_in_window", "window_masks"]
 
 #: why a rover epoch of its file was not solved: outside ``start_gps_s`` … ``end_gps_s``
 OUTSIDE_WINDOW = "outside the time window asked for (--start-time / --end-time)"
@@ -58,16 +58,22 @@ def with_dropped(pairing: dict, reason: str, n: int) -> dict:
     return {**pairing, "rover_epochs": pairing["rover_epochs"] + n, "dropped": {**pairing["dropped"], reason: n}}
 
 
+def window_masks(base_t, rover_t, lo, hi, tol: float, max_age_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of a base's and a rover's time tags (GPS s) a window [``lo``, ``hi``] keeps: the rover's
+    :func:`in_window` it, the base's within ``max_age_s`` more on each side (where the window's rover epochs find their
+    pairs and bridges)."""
+    age = float(max_age_s)
+    return (in_window(base_t, None if lo is None else lo - age, None if hi is None else hi + age, tol),
+            in_window(rover_t, lo, hi, tol))
+
+
 def pair_in_window(base_t, rover_t, lo, hi, tol: float, max_age_s: float, names: tuple) -> tuple[np.ndarray,
                                                                                                    np.ndarray]:
-    """The rows of a base's and a rover's time tags (GPS s) that a window [``lo``, ``hi``] keeps: the rover's
-    :func:`in_window` it, the base's within ``max_age_s`` more on each side (where the window's rover epochs find
-    their pairs and bridges).  ``names``: (base, rover) as the messages name them ("base.obs (base)").  CdgpsError
+    """:func:`window_masks`, refused when it keeps nothing.  ``names``: (base, rover) as the messages name them ("base.obs (base)").  CdgpsError
     naming the rover and its span when no rover epoch is inside, the base and its span when no base epoch is within
     ``max_age_s`` of it."""
     age = float(max_age_s)
-    keep_r = in_window(rover_t, lo, hi, tol)
-    keep_b = in_window(base_t, None if lo is None else lo - age, None if hi is None else hi + age, tol)
+    keep_b, keep_r = window_masks(base_t, rover_t, lo, hi, tol, age)
     for t, k, name, near in ((rover_t, keep_r, names[1], ""),
                              (base_t, keep_b, names[0], f" or within max_age_s ({age:g} s) of it")):
         if not k.any():

@@ -32,12 +32,12 @@ from cdgps_cli.estimation.rtk_multi import (RTK_MODES, check_common_signals, rec
 from cdgps_cli.measurement.code_steps import code_steps_warning
 from cdgps_cli.measurement.channel_screen import naming_screened, without_unusable_channels
 from cdgps_cli.measurement.slips import unflagged_slip_text
-from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, pair_in_window, window_errors, with_dropped
+from cdgps_cli.measurement.time_window import OUTSIDE_WINDOW, in_window, pair_in_window, window_errors, window_masks, with_dropped
 from cdgps_cli.io.atomic import write_atomic
 from cdgps_cli.io.gnss_sequence import (merge_signal_tables, pieces_text, refuse_another_receiver, refuse_spans_apart,
                                        systems_merged_text)
 from cdgps_cli.io.log_sequence import expand_paths, join_tables, one_file_for_two_receivers
-from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, end_padded_text, read_rinex_nav, repeated_headers_text
+from cdgps_cli.io.rinex import COMPRESSED_MAGIC, NAV_SYSTEMS, read_rinex_nav, reading_notes
 from cdgps_cli.io.rinex_signals import (signals_by_file, first_of_repeated_epochs, signal_attributes, glonass_without_frequency_text, out_of_order_text,
                                         read_rinex_signals,
                                         repeated_epochs_text, signals_in_file)
@@ -158,17 +158,6 @@ def _time_window(b: pd.DataFrame, r: pd.DataFrame, hr: dict, opt: dict, base_pat
     if hr.get("file_epochs") is not None:        # (counted apart, not as epochs without a phase)
         hr = {**hr, "file_epochs": int(hr["file_epochs"]) - n_outside}
     return b[kb].reset_index(drop=True), r[keep].reset_index(drop=True), hr, n_outside
-
-
-def _in_the_window(df: pd.DataFrame, opt: dict, who: str) -> np.ndarray:
-    """The rows of a receiver's table in the options' window as :func:`_time_window` cuts it (the base's
-    ``max_age_s`` wider on each side); every row without a window."""
-    lo, hi = opt["start_gps_s"], opt["end_gps_s"]
-    t = df["time_gps_s"].to_numpy()
-    if lo is None and hi is None:
-        return np.ones(t.size, dtype=bool)
-    age = float(opt["max_age_s"]) if who == "base" else 0.0
-    return in_window(t, None if lo is None else lo - age, None if hi is None else hi + age, float(opt["sync_tol_s"]))
 
 
 def _holds_none_of(exc: CdgpsError) -> bool:
@@ -330,7 +319,10 @@ def _read_pair(base_path, rover_path, nav_paths, opt: dict) -> SimpleNamespace:
     kept = [_without_unusable_channels(df, path, who, screened) for df, path, who in ((b, base_path, "base"),
                                                                                         (r, rover_path, "rover"))]
     b, r, hr, n_outside = _time_window(b, r, hr, opt, base_path, rover_path)
-    kept = [df[_in_the_window(df, opt, who)].reset_index(drop=True) for df, who in zip(kept, ("base", "rover"))]
+    if opt["start_gps_s"] is not None or opt["end_gps_s"] is not None:
+        masks = window_masks(kept[0]["time_gps_s"].to_numpy(), kept[1]["time_gps_s"].to_numpy(), opt["start_gps_s"],
+                             opt["end_gps_s"], float(opt["sync_tol_s"]), float(opt["max_age_s"]))
+        kept = [df[m].reset_index(drop=True) for df, m in zip(kept, masks)]
     _refuse_disjoint_spans(b, r, float(opt["max_age_s"]), base_path, rover_path)
     if nav_error is not None:
         raise nav_error
@@ -1013,10 +1005,7 @@ def _read_observations(path, sigs, glo_k, who: str, warnings: list,
         back = obs.attrs.pop("epochs_out_of_order", None)
         if back:
             warnings.append(out_of_order_text(f"{path} ({who})", back[0], back[1]))
-        if header.get("end_padded_lines"):
-            warnings.append(end_padded_text(f"{path} ({who})", header["end_padded_lines"]))
-        if header.get("repeated_headers"):
-            warnings.append(repeated_headers_text(f"{path} ({who})", header["repeated_headers"]))
+        warnings.extend(reading_notes(header, f"{path} ({who})"))
         return header, obs
     return _ubx_receiver(path, _ubx(path), sigs, who, warnings)
 
